@@ -1,0 +1,63 @@
+"""The one validation helper: shapes, dtypes, broadcasting and half-precision handling.
+
+Every public function calls :func:`prepare` on each tensor argument and :func:`restore` on its
+result. Checks look only at shapes and dtypes (static under ``torch.compile``), never at values,
+so they cost no device synchronisation.
+"""
+
+from typing import Sequence, Tuple
+
+import torch
+from torch import Tensor
+
+from .errors import ShapeError
+
+_HALF_DTYPES = (torch.float16, torch.bfloat16)
+
+
+def shape_text(trailing: Sequence[int]) -> str:
+    """``(4,)`` -> ``"(..., 4)"``; ``(3, 3)`` -> ``"(..., 3, 3)"``."""
+    return "(..., " + ", ".join(str(n) for n in trailing) + ")"
+
+
+def prepare(x, fn: str, name: str, trailing: Sequence[int]) -> Tuple[Tensor, torch.dtype]:
+    """Check ``x`` and return it in the dtype to compute in, with the dtype to return.
+
+    Raises ``TypeError`` for non-tensors of non-floating type and ``ShapeError`` when the
+    trailing dimensions are not ``trailing``. float16/bfloat16 are computed in float32.
+    """
+    if not isinstance(x, Tensor):
+        x = torch.as_tensor(x)
+    if not x.dtype.is_floating_point:
+        raise TypeError(f"{fn}: expected {name} to be a floating-point tensor, got dtype {x.dtype}")
+    n = len(trailing)
+    if x.dim() < n or tuple(x.shape[x.dim() - n:]) != tuple(trailing):
+        raise ShapeError(f"{fn}: expected {name} of shape {shape_text(trailing)}, got {tuple(x.shape)}")
+    if x.dtype in _HALF_DTYPES:
+        return x.float(), x.dtype
+    return x, x.dtype
+
+
+def restore(y: Tensor, dtype: torch.dtype) -> Tensor:
+    """Round a float32 result back to the caller's half-precision dtype (no-op otherwise)."""
+    return y if y.dtype == dtype else y.to(dtype)
+
+
+def common_dtype(fn: str, a: Tensor, b: Tensor) -> Tuple[Tensor, Tensor]:
+    """Promote two prepared tensors to one dtype (float32 with float64 gives float64)."""
+    if a.dtype == b.dtype:
+        return a, b
+    dtype = torch.promote_types(a.dtype, b.dtype)
+    return a.to(dtype), b.to(dtype)
+
+
+def check_broadcast(fn: str, names: Sequence[str], tensors: Sequence[Tensor],
+                    trailing: Sequence[int]) -> None:
+    """Raise ``ShapeError`` unless the batch shapes (all but the trailing dims) broadcast."""
+    batches = [tuple(t.shape[: t.dim() - n]) for t, n in zip(tensors, trailing)]
+    ndim = max(len(b) for b in batches)
+    for axis in range(1, ndim + 1):
+        sizes = {b[-axis] for b in batches if len(b) >= axis and b[-axis] != 1}
+        if len(sizes) > 1:
+            got = " and ".join(str(b) for b in batches)
+            raise ShapeError(f"{fn}: expected {' and '.join(names)} with broadcastable batch shapes, got {got}")

@@ -1,0 +1,143 @@
+"""Axis-angle (rotation vector) <-> quaternion and matrix.
+
+A rotation vector is the unit axis times the angle in radians. The functions switch to Taylor
+series below ``angle^2 < sqrt(eps)`` (thresholds from ``torch.finfo``), so values and gradients
+are exact to rounding at and near the zero rotation.
+"""
+
+import torch
+from torch import Tensor
+
+from ._math import small_angle_threshold
+from ._validation import prepare, restore
+from .matrix import matrix_to_quat_unchecked
+from .quaternion import standardize_sign
+
+__all__ = ["axis_angle_to_quat", "quat_to_axis_angle", "axis_angle_to_matrix", "matrix_to_axis_angle"]
+
+
+def axis_angle_to_quat_unchecked(v: Tensor) -> Tensor:
+    theta2 = (v * v).sum(-1, keepdim=True)
+    small = theta2 < small_angle_threshold(v.dtype)
+    theta = torch.sqrt(torch.where(small, 1.0, theta2))  # safe stand-in where the series is used
+    half = 0.5 * theta
+    cos_half = torch.where(small, 1.0 - theta2 / 8.0 + theta2 * theta2 / 384.0, torch.cos(half))
+    sinc_half = torch.where(small, 0.5 - theta2 / 48.0 + theta2 * theta2 / 3840.0, torch.sin(half) / theta)
+    q = torch.cat((cos_half, sinc_half * v), dim=-1)
+    return q * standardize_sign(q)
+
+
+def axis_angle_to_quat(v: Tensor) -> Tensor:
+    """Quaternion of a rotation vector.
+
+    Args:
+        v: unit axis times angle (radians); any length, zero included.
+
+    Returns:
+        Unit quaternions ``(w, x, y, z)`` with ``w >= 0``.
+
+    Shape:
+        ``(..., 3)`` -> ``(..., 4)``.
+
+    Example:
+        >>> axis_angle_to_quat(torch.tensor([0., 0., torch.pi]))
+        tensor([0., 0., 0., 1.])
+    """
+    v, dtype = prepare(v, "axis_angle_to_quat", "v", (3,))
+    return restore(axis_angle_to_quat_unchecked(v), dtype)
+
+
+def quat_to_axis_angle_unchecked(q: Tensor) -> Tensor:
+    w = q[..., :1]
+    hemisphere = torch.where(w < 0, -1.0, 1.0).to(q.dtype)  # shortest arc: use the w >= 0 copy
+    w = w * hemisphere
+    u = q[..., 1:] * hemisphere
+    n2 = (u * u).sum(-1, keepdim=True)
+    r2 = n2 / (w * w)  # tan^2(angle / 4); inf at 180 degrees, NaN only for q = 0
+    small = r2 < small_angle_threshold(q.dtype)
+    n = torch.sqrt(torch.where(small, 1.0, n2))
+    # angle / |u| = 2 atan(r) / (r w): its series in r^2 = tan^2(angle / 4) is (2 / w)(1 - r^2/3 + r^4/5).
+    series = (2.0 - r2 * (2.0 / 3.0) + r2 * r2 * 0.4) / torch.where(small, w, 1.0)
+    scale = torch.where(small, series, 2.0 * torch.atan2(n, w) / n)
+    return u * scale
+
+
+def quat_to_axis_angle(q: Tensor) -> Tensor:
+    """Rotation vector of a quaternion, along the shortest arc (angle in ``[0, pi]``).
+
+    Args:
+        q: quaternions ``(w, x, y, z)``; need not be unit. The zero quaternion gives NaN.
+
+    Returns:
+        Unit axis times angle.
+
+    Shape:
+        ``(..., 4)`` -> ``(..., 3)``.
+
+    Example:
+        >>> quat_to_axis_angle(torch.tensor([0., 0., 0., -1.]))  # -q is the same rotation
+        tensor([0.0000, 0.0000, 3.1416])
+    """
+    q, dtype = prepare(q, "quat_to_axis_angle", "q", (4,))
+    return restore(quat_to_axis_angle_unchecked(q), dtype)
+
+
+def axis_angle_to_matrix_unchecked(v: Tensor) -> Tensor:
+    theta2 = (v * v).sum(-1)
+    small = theta2 < small_angle_threshold(v.dtype)
+    theta = torch.sqrt(torch.where(small, 1.0, theta2))
+    sin_half = torch.sin(0.5 * theta)
+    t4 = theta2 * theta2
+    # Rodrigues: R = cos(t) I + (sin t / t) [v]x + ((1 - cos t) / t^2) v v^T, with
+    # 1 - cos t written as 2 sin^2(t / 2) so it has no cancellation.
+    cos = torch.where(small, 1.0 - theta2 / 2.0 + t4 / 24.0, torch.cos(theta))
+    A = torch.where(small, 1.0 - theta2 / 6.0 + t4 / 120.0, torch.sin(theta) / theta)
+    B = torch.where(small, 0.5 - theta2 / 24.0 + t4 / 720.0, 2.0 * sin_half * sin_half / theta2)
+    x, y, z = v.unbind(-1)
+    Bx, By, Bz = B * x, B * y, B * z
+    Ax, Ay, Az = A * x, A * y, A * z
+    R = torch.stack((
+        cos + Bx * x, Bx * y - Az, Bx * z + Ay,
+        Bx * y + Az, cos + By * y, By * z - Ax,
+        Bx * z - Ay, By * z + Ax, cos + Bz * z,
+    ), dim=-1)
+    return R.unflatten(-1, (3, 3))
+
+
+def axis_angle_to_matrix(v: Tensor) -> Tensor:
+    """Rotation matrix of a rotation vector (Rodrigues' formula).
+
+    Args:
+        v: unit axis times angle (radians).
+
+    Returns:
+        Rotation matrices acting on column vectors.
+
+    Shape:
+        ``(..., 3)`` -> ``(..., 3, 3)``.
+
+    Example:
+        >>> axis_angle_to_matrix(torch.tensor([0., 0., torch.pi / 2])).round(decimals=6)
+        tensor([[ 0., -1.,  0.],
+                [ 1.,  0.,  0.],
+                [ 0.,  0.,  1.]])
+    """
+    v, dtype = prepare(v, "axis_angle_to_matrix", "v", (3,))
+    return restore(axis_angle_to_matrix_unchecked(v), dtype)
+
+
+def matrix_to_axis_angle(R: Tensor) -> Tensor:
+    """Rotation vector of a rotation matrix, along the shortest arc (angle in ``[0, pi]``).
+
+    Goes through Shepperd's quaternion, which is accurate at 180 degrees where the
+    ``acos((tr R - 1) / 2)`` formula loses half its digits. Each row is computed on its own.
+
+    Shape:
+        ``(..., 3, 3)`` -> ``(..., 3)``.
+
+    Example:
+        >>> matrix_to_axis_angle(torch.eye(3))
+        tensor([0., 0., 0.])
+    """
+    R, dtype = prepare(R, "matrix_to_axis_angle", "R", (3, 3))
+    return restore(quat_to_axis_angle_unchecked(matrix_to_quat_unchecked(R)), dtype)

@@ -1,0 +1,316 @@
+"""Quaternion algebra: products, conjugates, normalisation, rotation of vectors, slerp, sampling.
+
+Quaternions are ``(..., 4)`` tensors ``(w, x, y, z)`` with the Hamilton product (``ij = k``).
+These functions keep signs as the mathematics gives them; only the conversions that *produce*
+a quaternion from another representation standardise to ``w >= 0``.
+"""
+
+import math
+from typing import Sequence, Union
+
+import torch
+from torch import Tensor
+
+from ._validation import check_broadcast, common_dtype, prepare, restore
+
+__all__ = [
+    "quat_multiply", "quat_conjugate", "quat_inverse", "quat_normalize", "quat_standardize",
+    "quat_rotate", "quat_slerp", "quat_identity", "random_quat",
+    "quat_wxyz_to_xyzw", "quat_xyzw_to_wxyz", "quat_from_jpl", "quat_to_jpl",
+]
+
+
+def _prepare_pair(fn, a, b, names, trailing=(4, 4)):
+    a, dtype = prepare(a, fn, names[0], (trailing[0],))
+    b, _ = prepare(b, fn, names[1], (trailing[1],))
+    check_broadcast(fn, names, (a, b), (1, 1))
+    a, b = common_dtype(fn, a, b)
+    return a, b, dtype
+
+
+def hamilton_product(p: Tensor, q: Tensor) -> Tensor:
+    """Unchecked Hamilton product of prepared tensors (used internally)."""
+    pw, px, py, pz = p.unbind(-1)
+    qw, qx, qy, qz = q.unbind(-1)
+    return torch.stack((
+        pw * qw - px * qx - py * qy - pz * qz,
+        pw * qx + px * qw + py * qz - pz * qy,
+        pw * qy - px * qz + py * qw + pz * qx,
+        pw * qz + px * qy - py * qx + pz * qw,
+    ), dim=-1)
+
+
+def quat_multiply(p: Tensor, q: Tensor) -> Tensor:
+    """Hamilton product ``p * q`` (apply ``q`` first, then ``p``).
+
+    Args:
+        p: quaternions ``(w, x, y, z)``.
+        q: quaternions ``(w, x, y, z)``; batch dims broadcast with ``p``'s.
+
+    Returns:
+        The product, unnormalised, with signs as the algebra gives them.
+
+    Shape:
+        ``(..., 4)`` and ``(..., 4)`` -> ``(..., 4)`` (broadcast batch).
+
+    Example:
+        >>> i = torch.tensor([0., 1., 0., 0.]); j = torch.tensor([0., 0., 1., 0.])
+        >>> quat_multiply(i, j)  # ij = k
+        tensor([0., 0., 0., 1.])
+    """
+    p, q, dtype = _prepare_pair("quat_multiply", p, q, ("p", "q"))
+    return restore(hamilton_product(p, q), dtype)
+
+
+def quat_conjugate(q: Tensor) -> Tensor:
+    """Conjugate ``(w, -x, -y, -z)``: the inverse rotation for a unit quaternion.
+
+    Shape:
+        ``(..., 4)`` -> ``(..., 4)``.
+
+    Example:
+        >>> quat_conjugate(torch.tensor([1., 2., 3., 4.]))
+        tensor([ 1., -2., -3., -4.])
+    """
+    q, dtype = prepare(q, "quat_conjugate", "q", (4,))
+    return restore(q * q.new_tensor([1.0, -1.0, -1.0, -1.0]), dtype)
+
+
+def quat_inverse(q: Tensor) -> Tensor:
+    """Multiplicative inverse ``conj(q) / |q|^2`` (NaN for the zero quaternion).
+
+    Shape:
+        ``(..., 4)`` -> ``(..., 4)``.
+
+    Example:
+        >>> quat_inverse(torch.tensor([0., 2., 0., 0.]))
+        tensor([ 0.0000, -0.5000, -0.0000, -0.0000])
+    """
+    q, dtype = prepare(q, "quat_inverse", "q", (4,))
+    inv = q * q.new_tensor([1.0, -1.0, -1.0, -1.0]) / (q * q).sum(-1, keepdim=True)
+    return restore(inv, dtype)
+
+
+def quat_normalize(q: Tensor) -> Tensor:
+    """Scale to unit norm; the zero quaternion gives NaN (no rotation is plausible for it).
+
+    Shape:
+        ``(..., 4)`` -> ``(..., 4)``.
+
+    Example:
+        >>> quat_normalize(torch.tensor([2., 0., 0., 0.]))
+        tensor([1., 0., 0., 0.])
+    """
+    q, dtype = prepare(q, "quat_normalize", "q", (4,))
+    return restore(normalized(q), dtype)
+
+
+def normalized(q: Tensor) -> Tensor:
+    """Unchecked ``q / |q|`` with NaN (not inf or 0) for zero vectors."""
+    return q * torch.rsqrt((q * q).sum(-1, keepdim=True))
+
+
+def standardize_sign(q: Tensor) -> Tensor:
+    """Unchecked: the sign (+-1, shape ``(..., 1)``) that makes ``q`` canonical.
+
+    Canonical means ``w > 0``, or ``w == 0`` and the first non-zero of ``x, y, z`` positive,
+    so that every rotation has exactly one representative (SciPy's canonical form).
+    """
+    w, x, y, z = q.unbind(-1)
+    negative = torch.where(w != 0, w < 0, torch.where(x != 0, x < 0, torch.where(y != 0, y < 0, z < 0)))
+    return torch.where(negative, -1.0, 1.0).to(q.dtype).unsqueeze(-1)
+
+
+def quat_standardize(q: Tensor) -> Tensor:
+    """Pick the representative with ``w >= 0`` (``q`` and ``-q`` are the same rotation).
+
+    When ``w == 0`` (a half turn) the first non-zero of ``x, y, z`` is made positive, so the
+    result is unique for every rotation.
+
+    Shape:
+        ``(..., 4)`` -> ``(..., 4)``.
+
+    Example:
+        >>> quat_standardize(torch.tensor([-1., 0., 0., 0.]))
+        tensor([1., -0., -0., -0.])
+    """
+    q, dtype = prepare(q, "quat_standardize", "q", (4,))
+    return restore(q * standardize_sign(q), dtype)
+
+
+def quat_rotate(q: Tensor, v: Tensor) -> Tensor:
+    """Rotate 3-vectors: ``q (0, v) q*`` for unit ``q``, computed as ``t = 2 q_vec x v``,
+    ``v' = v + w t + q_vec x t``.
+
+    A non-unit ``q`` rotates by ``q / |q|`` (``t`` is divided by ``|q|^2``), matching
+    :func:`quat_to_matrix`; the zero quaternion gives NaN.
+
+    Args:
+        q: quaternions ``(w, x, y, z)``.
+        v: vectors; batch dims broadcast with ``q``'s (one rotation for many points or one each).
+
+    Returns:
+        The rotated vectors.
+
+    Shape:
+        ``(..., 4)`` and ``(..., 3)`` -> ``(..., 3)`` (broadcast batch).
+
+    Example:
+        >>> q = torch.tensor([math.cos(math.pi / 4), 0., 0., math.sin(math.pi / 4)])  # 90 deg about z
+        >>> quat_rotate(q, torch.tensor([1., 0., 0.])).round(decimals=6)
+        tensor([0., 1., 0.])
+    """
+    q, dtype = prepare(q, "quat_rotate", "q", (4,))
+    v, _ = prepare(v, "quat_rotate", "v", (3,))
+    check_broadcast("quat_rotate", ("q", "v"), (q, v), (1, 1))
+    q, v = common_dtype("quat_rotate", q, v)
+    w, u = q[..., :1], q[..., 1:]
+    t = torch.linalg.cross(u, v, dim=-1) * (2.0 / (q * q).sum(-1, keepdim=True))
+    return restore(v + w * t + torch.linalg.cross(u, t, dim=-1), dtype)
+
+
+def quat_slerp(q0: Tensor, q1: Tensor, t: Union[float, Tensor]) -> Tensor:
+    """Spherical linear interpolation along the shortest path (Shoemake 1985).
+
+    ``q1`` is negated where ``<q0, q1> < 0`` so the arc is the short one. The angle is computed
+    as ``2 atan2(|q0 - q1|, |q0 + q1|)`` (accurate near 0 and pi), and below ``sqrt(eps)`` the
+    weights fall back to their Taylor limits ``(1 - t, t)``, so gradients stay finite at ``q0 == q1``.
+
+    Args:
+        q0: start quaternions (unit).
+        q1: end quaternions (unit); batch dims broadcast with ``q0``'s.
+        t: interpolation parameter, a float or a tensor broadcasting with the batch dims.
+
+    Returns:
+        Unit quaternions; ``t = 0`` gives ``q0`` and ``t = 1`` gives ``+-q1``.
+
+    Shape:
+        ``(..., 4)``, ``(..., 4)``, ``(...)`` -> ``(..., 4)``.
+
+    Example:
+        >>> q0 = quat_identity(); q1 = torch.tensor([0., 0., 0., 1.])  # 180 deg about z
+        >>> quat_slerp(q0, q1, 0.5)  # 90 deg about z
+        tensor([0.7071, 0.0000, 0.0000, 0.7071])
+    """
+    q0, q1, dtype = _prepare_pair("quat_slerp", q0, q1, ("q0", "q1"))
+    t = torch.as_tensor(t, dtype=q0.dtype, device=q0.device).unsqueeze(-1)
+    q1 = torch.where((q0 * q1).sum(-1, keepdim=True) < 0, -q1, q1)
+    diff2 = ((q0 - q1) ** 2).sum(-1, keepdim=True)
+    summ2 = ((q0 + q1) ** 2).sum(-1, keepdim=True)
+    small = diff2 < torch.finfo(q0.dtype).eps  # |q0 - q1| < sqrt(eps): angle below ~sqrt(eps)
+    half_angle = 2.0 * torch.atan2(torch.sqrt(torch.where(small, 1.0, diff2)), torch.sqrt(summ2))
+    half_angle = torch.where(small, 1.0, half_angle)  # safe stand-in, discarded below
+    sin_angle = torch.sin(half_angle)
+    w0 = torch.where(small, 1.0 - t, torch.sin((1.0 - t) * half_angle) / sin_angle)
+    w1 = torch.where(small, t, torch.sin(t * half_angle) / sin_angle)
+    return restore(w0 * q0 + w1 * q1, dtype)
+
+
+def quat_identity(shape: Union[int, Sequence[int]] = (), *, dtype=None, device=None) -> Tensor:
+    """Identity quaternions ``(1, 0, 0, 0)``.
+
+    Shape:
+        ``shape`` -> ``(*shape, 4)``.
+
+    Example:
+        >>> quat_identity(2)
+        tensor([[1., 0., 0., 0.],
+                [1., 0., 0., 0.]])
+    """
+    shape = (shape,) if isinstance(shape, int) else tuple(shape)
+    q = torch.zeros(shape + (4,), dtype=dtype, device=device)
+    q[..., 0] = 1.0  # a fresh tensor we own: writing into it changes no input
+    return q
+
+
+def random_quat(shape: Union[int, Sequence[int]] = (), *, generator=None, dtype=None,
+                device=None) -> Tensor:
+    """Rotations drawn uniformly from SO(3) (Shoemake 1992, "Uniform random rotations").
+
+    Args:
+        shape: batch shape.
+        generator: a ``torch.Generator`` for reproducible draws.
+        dtype: defaults to ``torch.get_default_dtype()``.
+        device: where to create the tensor.
+
+    Returns:
+        Unit quaternions; signs are as drawn (both hemispheres occur).
+
+    Shape:
+        ``shape`` -> ``(*shape, 4)``.
+
+    Example:
+        >>> q = random_quat(1000, generator=torch.Generator().manual_seed(0))
+        >>> bool(torch.allclose(q.norm(dim=-1), torch.ones(1000)))
+        True
+    """
+    shape = (shape,) if isinstance(shape, int) else tuple(shape)
+    dtype = torch.get_default_dtype() if dtype is None else dtype
+    work = torch.float32 if dtype in (torch.float16, torch.bfloat16) else dtype
+    u = torch.rand(shape + (3,), generator=generator, dtype=work, device=device)
+    u1, u2, u3 = u.unbind(-1)
+    r1, r2 = torch.sqrt(1.0 - u1), torch.sqrt(u1)
+    a2, a3 = 2.0 * math.pi * u2, 2.0 * math.pi * u3
+    q = torch.stack((r2 * torch.cos(a3), r1 * torch.sin(a2), r1 * torch.cos(a2), r2 * torch.sin(a3)), -1)
+    return q.to(dtype)
+
+
+def quat_wxyz_to_xyzw(q: Tensor) -> Tensor:
+    """Reorder scalar-first ``(w, x, y, z)`` to scalar-last ``(x, y, z, w)`` (SciPy, ROS, RoMa).
+
+    Shape:
+        ``(..., 4)`` -> ``(..., 4)``.
+
+    Example:
+        >>> quat_wxyz_to_xyzw(torch.tensor([1., 2., 3., 4.]))
+        tensor([2., 3., 4., 1.])
+    """
+    q, dtype = prepare(q, "quat_wxyz_to_xyzw", "q", (4,))
+    return restore(q.roll(-1, dims=-1), dtype)
+
+
+def quat_xyzw_to_wxyz(q: Tensor) -> Tensor:
+    """Reorder scalar-last ``(x, y, z, w)`` to scalar-first ``(w, x, y, z)``.
+
+    Shape:
+        ``(..., 4)`` -> ``(..., 4)``.
+
+    Example:
+        >>> quat_xyzw_to_wxyz(torch.tensor([2., 3., 4., 1.]))
+        tensor([1., 2., 3., 4.])
+    """
+    q, dtype = prepare(q, "quat_xyzw_to_wxyz", "q", (4,))
+    return restore(q.roll(1, dims=-1), dtype)
+
+
+def quat_from_jpl(q: Tensor) -> Tensor:
+    """JPL quaternion ``(x, y, z, w)`` (scalar last, ``ij = -k``) to the Hamilton quaternion with
+    the same rotation matrix.
+
+    Trawny and Roumeliotis (2005) give ``C(q) = (2w^2 - 1) I - 2w [q_vec x] + 2 q_vec q_vec^T``,
+    which is ``quat_to_matrix((w, -x, -y, -z))``.
+
+    Shape:
+        ``(..., 4)`` -> ``(..., 4)``.
+
+    Example:
+        >>> quat_from_jpl(torch.tensor([1., 2., 3., 4.]))
+        tensor([ 4., -1., -2., -3.])
+    """
+    q, dtype = prepare(q, "quat_from_jpl", "q", (4,))
+    return restore(q.roll(1, dims=-1) * q.new_tensor([1.0, -1.0, -1.0, -1.0]), dtype)
+
+
+def quat_to_jpl(q: Tensor) -> Tensor:
+    """Hamilton quaternion ``(w, x, y, z)`` to the JPL quaternion ``(-x, -y, -z, w)``; inverse of
+    :func:`quat_from_jpl`.
+
+    Shape:
+        ``(..., 4)`` -> ``(..., 4)``.
+
+    Example:
+        >>> quat_to_jpl(torch.tensor([4., -1., -2., -3.]))
+        tensor([1., 2., 3., 4.])
+    """
+    q, dtype = prepare(q, "quat_to_jpl", "q", (4,))
+    return restore(q.roll(-1, dims=-1) * q.new_tensor([-1.0, -1.0, -1.0, 1.0]), dtype)

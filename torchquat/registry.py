@@ -1,0 +1,145 @@
+"""The representation registry and :func:`convert`, the one entry point over all of them.
+
+Each representation names its trailing shape and how it reaches its *hub*: the quaternion for
+quaternion-like ones (Euler angles and axis-angle have closed forms there) and the matrix for
+matrix-like ones (6D, 9D). ``convert``, ``torchquat.nn`` and the command line all read this
+table instead of keeping if/elif chains of their own.
+"""
+
+import math
+from typing import Callable, Dict, NamedTuple, Optional, Tuple
+
+from torch import Tensor
+
+from ._validation import prepare, restore
+from .axis_angle import axis_angle_to_quat_unchecked, quat_to_axis_angle_unchecked
+from .conventions import parse_convention
+from .euler import euler_to_quat_unchecked, quat_to_euler_unchecked
+from .errors import ConventionError, ShapeError
+from .matrix import matrix_to_quat_unchecked, quat_to_matrix_unchecked
+from .quaternion import standardize_sign
+from .rot6d import rot6d_to_matrix_unchecked, rot9d_to_matrix_unchecked
+
+__all__ = ["Representation", "REPRESENTATIONS", "convert", "parse_representation"]
+
+
+class Options(NamedTuple):
+    convention: Optional[object]  # a parsed EulerConvention, for "euler" only
+    degrees: bool
+    eps: Optional[float]
+
+
+class Representation(NamedTuple):
+    """One rotation representation: its name, shape and the way to and from its hub."""
+
+    name: str
+    shape: Tuple[int, ...]  # trailing shape of a tensor in this representation
+    hub: str  # "quat" or "matrix"
+    to_hub: Callable[[Tensor, Options], Tensor]
+    from_hub: Callable[[Tensor, Options], Tensor]
+    doc: str
+
+    @property
+    def size(self) -> int:
+        """How many numbers one rotation takes (the output size of a network head)."""
+        return math.prod(self.shape)
+
+
+def _standardized(q: Tensor, _opts: Options) -> Tensor:
+    return q * standardize_sign(q)
+
+
+def _euler_to_quat(x: Tensor, o: Options) -> Tensor:
+    return euler_to_quat_unchecked(x * (math.pi / 180.0) if o.degrees else x, o.convention)
+
+
+def _quat_to_euler(q: Tensor, o: Options) -> Tensor:
+    angles = quat_to_euler_unchecked(q, o.convention, o.eps)
+    return angles * (180.0 / math.pi) if o.degrees else angles
+
+
+def _identity(x: Tensor, _opts: Options) -> Tensor:
+    return x
+
+
+REPRESENTATIONS: Dict[str, Representation] = {r.name: r for r in (
+    Representation("quat", (4,), "quat", _identity, _standardized,
+                   "quaternion (w, x, y, z), returned with w >= 0"),
+    Representation("quat_xyzw", (4,), "quat", lambda x, o: x.roll(1, dims=-1),
+                   lambda q, o: _standardized(q, o).roll(-1, dims=-1),
+                   "quaternion (x, y, z, w), scalar last (SciPy, ROS), returned with w >= 0"),
+    Representation("matrix", (3, 3), "matrix", _identity, _identity, "3x3 rotation matrix"),
+    Representation("euler", (3,), "quat", _euler_to_quat, _quat_to_euler,
+                   "Euler angles; needs convention= (or 'euler:ZYX')"),
+    Representation("axis_angle", (3,), "quat", lambda x, o: axis_angle_to_quat_unchecked(x),
+                   lambda q, o: quat_to_axis_angle_unchecked(q), "rotation vector, angle in [0, pi]"),
+    Representation("rot6d", (6,), "matrix", lambda x, o: rot6d_to_matrix_unchecked(x),
+                   lambda R, o: R[..., :, :2].mT.flatten(-2), "first two columns of R (Zhou et al. 2019)"),
+    Representation("rot9d", (9,), "matrix", lambda x, o: rot9d_to_matrix_unchecked(x.unflatten(-1, (3, 3))),
+                   lambda R, o: R.flatten(-2), "any 3x3 matrix row-major, projected by SVD (Levinson et al. 2020)"),
+)}
+
+_HUB_TO_HUB = {("quat", "matrix"): quat_to_matrix_unchecked, ("matrix", "quat"): matrix_to_quat_unchecked}
+
+
+def parse_representation(token: str, fn: str, convention=None):
+    """Split ``"euler:ZYX"`` into the registry entry and the convention; check both."""
+    if not isinstance(token, str):
+        raise ValueError(f"{fn}: expected a representation name, got {token!r}")
+    name, _, inline = token.partition(":")
+    rep = REPRESENTATIONS.get(name)
+    if rep is None:
+        raise ValueError(f"{fn}: unknown representation {token!r}: use one of {', '.join(sorted(REPRESENTATIONS))}")
+    if inline and name != "euler":
+        raise ValueError(f"{fn}: only 'euler' takes a convention after ':', got {token!r}")
+    if inline and convention is not None and inline != convention:
+        raise ConventionError(f"{fn}: two conventions given, {inline!r} in the name and {convention!r} as keyword")
+    convention = inline or convention
+    if name == "euler":
+        if convention is None:
+            raise ConventionError(f"{fn}: 'euler' needs a convention, e.g. convention='ZYX' or 'euler:ZYX' "
+                                  "(there is no default: say which one you mean)")
+        return rep, parse_convention(convention, fn)
+    return rep, None
+
+
+def convert(x: Tensor, src: str, dst: str, *, convention: Optional[str] = None, degrees: bool = False,
+            eps: Optional[float] = None) -> Tensor:
+    """Convert rotations between any two representations.
+
+    Tokens: ``"quat"``, ``"quat_xyzw"``, ``"matrix"``, ``"euler"`` (with ``convention=`` or as
+    ``"euler:ZYX"``), ``"axis_angle"``, ``"rot6d"``, ``"rot9d"``. Quaternion outputs have
+    ``w >= 0``; ``"rot9d"`` output is the matrix flattened row-major and ``"rot9d"`` input is
+    read row-major (``(..., 3, 3)`` is accepted too) and projected onto a rotation.
+
+    Args:
+        x: rotations in representation ``src``.
+        src: input representation token.
+        dst: output representation token.
+        convention: Euler convention when ``src`` or ``dst`` is ``"euler"`` (both use it).
+        degrees: Euler angles in degrees.
+        eps: gimbal-lock threshold for Euler output (see :func:`quat_to_euler`).
+
+    Returns:
+        The same rotations in representation ``dst``.
+
+    Shape:
+        ``(..., *src_shape)`` -> ``(..., *dst_shape)``.
+
+    Example:
+        >>> convert(torch.tensor([90., 0., 0.]), "euler:ZYX", "axis_angle", degrees=True)
+        tensor([0.0000, 0.0000, 1.5708])
+    """
+    src_rep, src_conv = parse_representation(src, "convert", convention)
+    dst_rep, dst_conv = parse_representation(dst, "convert", convention)
+    shape = src_rep.shape
+    if src_rep.name == "rot9d" and isinstance(x, Tensor) and x.dim() >= 2 and tuple(x.shape[-2:]) == (3, 3):
+        x = x.flatten(-2)
+    try:
+        x, dtype = prepare(x, "convert", "x", shape)
+    except ShapeError as err:
+        raise ShapeError(f"{err} (for src={src!r})") from None
+    hub = src_rep.to_hub(x, Options(src_conv, degrees, eps))
+    if src_rep.hub != dst_rep.hub:
+        hub = _HUB_TO_HUB[(src_rep.hub, dst_rep.hub)](hub)
+    return restore(dst_rep.from_hub(hub, Options(dst_conv, degrees, eps)), dtype)

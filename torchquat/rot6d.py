@@ -1,0 +1,141 @@
+"""6D (two columns, Zhou et al. 2019) and 9D (SVD projection, Levinson et al. 2020) rotations."""
+
+import torch
+from torch import Tensor
+
+from ._validation import prepare, restore
+from .errors import ShapeError
+
+__all__ = ["rot6d_to_matrix", "matrix_to_rot6d", "rot9d_to_matrix"]
+
+
+def rot6d_to_matrix_unchecked(x: Tensor) -> Tensor:
+    a1, a2 = x[..., :3], x[..., 3:]
+    b1 = a1 * torch.rsqrt((a1 * a1).sum(-1, keepdim=True))  # NaN for a zero first column
+    b2 = a2 - (b1 * a2).sum(-1, keepdim=True) * b1
+    n2 = (b2 * b2).sum(-1, keepdim=True)
+    # Collinear to rounding: what is left of a2 is rounding noise, whose direction would be a
+    # plausible but arbitrary rotation. Give NaN instead.
+    noise = (16.0 * torch.finfo(x.dtype).eps) ** 2 * (a2 * a2).sum(-1, keepdim=True)
+    b2 = b2 * torch.where(n2 > noise, torch.rsqrt(torch.where(n2 > noise, n2, 1.0)), torch.nan)
+    b3 = torch.linalg.cross(b1, b2, dim=-1)
+    return torch.stack((b1, b2, b3), dim=-1)
+
+
+def rot6d_to_matrix(x: Tensor) -> Tensor:
+    """Rotation matrix from the 6D representation by Gram-Schmidt (Zhou et al. 2019).
+
+    The 6 numbers are the first two **columns** of R, ``cat(R[..., :, 0], R[..., :, 1])``, as
+    in the paper. PyTorch3D and pytorch-kinematics use the first two *rows* instead: their 6D
+    of ``R`` is torchquat's 6D of ``R.mT``. Any pair of non-collinear vectors is accepted; collinear ones (to rounding) give NaN.
+
+    Args:
+        x: two 3-vectors, concatenated.
+
+    Returns:
+        Rotation matrices (orthonormal, det +1): column 1 is ``x[:3]`` normalised, column 2 is
+        ``x[3:]`` made orthogonal to it, column 3 their cross product.
+
+    Shape:
+        ``(..., 6)`` -> ``(..., 3, 3)``.
+
+    Example:
+        >>> rot6d_to_matrix(torch.tensor([2., 0., 0., 1., 3., 0.]))
+        tensor([[1., 0., 0.],
+                [0., 1., 0.],
+                [0., 0., 1.]])
+    """
+    x, dtype = prepare(x, "rot6d_to_matrix", "x", (6,))
+    return restore(rot6d_to_matrix_unchecked(x), dtype)
+
+
+def matrix_to_rot6d(R: Tensor) -> Tensor:
+    """The 6D representation: the first two columns of R, ``cat(R[..., :, 0], R[..., :, 1])``.
+
+    Shape:
+        ``(..., 3, 3)`` -> ``(..., 6)``.
+
+    Example:
+        >>> matrix_to_rot6d(torch.eye(3))
+        tensor([1., 0., 0., 0., 1., 0.])
+    """
+    R, dtype = prepare(R, "matrix_to_rot6d", "R", (3, 3))
+    return restore(torch.cat((R[..., :, 0], R[..., :, 1]), dim=-1), dtype)
+
+
+class _SpecialProcrustes(torch.autograd.Function):
+    """``R = U diag(1, 1, det(U V^T)) V^T`` with a closed-form backward.
+
+    Autograd through ``torch.linalg.svd`` divides by ``s_i - s_j`` and is inf/NaN when singular
+    values coincide, which is exactly the case for an input that is already a rotation. The
+    projection itself only depends on ``s_i + s_j``: with ``M = U' S' V^T`` (``U' = U D``,
+    ``S' = D S``), ``dR = R Omega`` where ``(V^T Omega V)_ij (s'_i + s'_j) = (X - X^T)_ij`` and
+    ``X = U'^T dM V``. Its adjoint is ``grad_M = U' Z V^T`` with
+    ``Z_ij = (Y_ij - Y_ji) / (s'_i + s'_j)``, ``Y = U'^T grad_R V``. Once differentiable.
+    """
+
+    generate_vmap_rule = True
+
+    @staticmethod
+    def forward(M):
+        U, S, Vh = torch.linalg.svd(M)
+        d = torch.where(torch.linalg.det(U) * torch.linalg.det(Vh) < 0, -1.0, 1.0).to(M.dtype)
+        flip = torch.stack((torch.ones_like(d), torch.ones_like(d), d), dim=-1)
+        U_signed = U * flip.unsqueeze(-2)
+        return U_signed @ Vh, U_signed, S * flip, Vh
+
+    @staticmethod
+    def setup_context(ctx, inputs, output):
+        _, U_signed, S_signed, Vh = output
+        ctx.save_for_backward(U_signed, S_signed, Vh)
+        ctx.mark_non_differentiable(U_signed, S_signed, Vh)
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad_R, _gu, _gs, _gv):
+        U, S, Vh = ctx.saved_tensors
+        Y = U.mT @ grad_R @ Vh.mT
+        denom = S.unsqueeze(-1) + S.unsqueeze(-2)
+        tiny = torch.finfo(S.dtype).eps
+        denom = torch.where(denom.abs() < tiny, tiny, denom)  # rank <= 1: any finite value
+        Z = (Y - Y.mT) / denom
+        return U @ Z @ Vh
+
+
+def rot9d_to_matrix_unchecked(M: Tensor) -> Tensor:
+    return _SpecialProcrustes.apply(M)[0]
+
+
+def rot9d_to_matrix(x: Tensor) -> Tensor:
+    """The rotation nearest to any 3x3 matrix (special orthogonal Procrustes, Levinson et al. 2020).
+
+    ``R = U diag(1, 1, det(U V^T)) V^T`` from the SVD ``x = U S V^T``: the closest rotation in
+    Frobenius norm, always det +1. The backward pass is closed-form and stays finite when
+    singular values coincide (autograd through ``svd`` does not); it is once differentiable.
+
+    Args:
+        x: 9 numbers read row-major, or a ``(..., 3, 3)`` matrix.
+
+    Returns:
+        Rotation matrices.
+
+    Shape:
+        ``(..., 9)`` or ``(..., 3, 3)`` -> ``(..., 3, 3)``.
+
+    Example:
+        >>> rot9d_to_matrix(torch.tensor([0., -2., 0., 3., 0., 0., 0., 0., 0.5]))  # 90 deg about z, scaled
+        tensor([[ 0., -1.,  0.],
+                [ 1.,  0.,  0.],
+                [ 0.,  0.,  1.]])
+    """
+    if isinstance(x, Tensor) and x.dim() >= 1 and x.shape[-1] == 9:
+        x, dtype = prepare(x, "rot9d_to_matrix", "x", (9,))
+        x = x.unflatten(-1, (3, 3))
+    else:
+        try:
+            x, dtype = prepare(x, "rot9d_to_matrix", "x", (3, 3))
+        except ShapeError:
+            raise ShapeError(
+                f"rot9d_to_matrix: expected x of shape (..., 9) or (..., 3, 3), got {tuple(torch.as_tensor(x).shape)}"
+            ) from None
+    return restore(rot9d_to_matrix_unchecked(x), dtype)
