@@ -40,24 +40,24 @@ def axis_angle_to_quat(v: Tensor) -> Tensor:
         ``(..., 3)`` -> ``(..., 4)``.
 
     Example:
-        >>> axis_angle_to_quat(torch.tensor([0., 0., torch.pi]))
-        tensor([0., 0., 0., 1.])
+        >>> axis_angle_to_quat(torch.tensor([0., 0., torch.pi / 2]))
+        tensor([0.7071, 0.0000, 0.0000, 0.7071])
     """
     v, dtype = prepare(v, "axis_angle_to_quat", "v", (3,))
     return restore(axis_angle_to_quat_unchecked(v), dtype)
 
 
 def quat_to_axis_angle_unchecked(q: Tensor) -> Tensor:
-    w = q[..., :1]
-    hemisphere = torch.where(w < 0, -1.0, 1.0).to(q.dtype)  # shortest arc: use the w >= 0 copy
-    w = w * hemisphere
+    hemisphere = standardize_sign(q)  # shortest arc: use the w >= 0 copy (unique at w == 0 too)
+    w = q[..., :1] * hemisphere
     u = q[..., 1:] * hemisphere
-    n2 = (u * u).sum(-1, keepdim=True)
-    r2 = n2 / (w * w)  # tan^2(angle / 4); inf at 180 degrees, NaN only for q = 0
-    small = r2 < small_angle_threshold(q.dtype)
+    n2, w2 = (u * u).sum(-1, keepdim=True), w * w
+    small = n2 < small_angle_threshold(q.dtype) * w2  # r^2 = n^2 / w^2 = tan^2(angle / 4) is small
     n = torch.sqrt(torch.where(small, 1.0, n2))
-    # angle / |u| = 2 atan(r) / (r w): its series in r^2 = tan^2(angle / 4) is (2 / w)(1 - r^2/3 + r^4/5).
-    series = (2.0 - r2 * (2.0 / 3.0) + r2 * r2 * 0.4) / torch.where(small, w, 1.0)
+    w_safe = torch.where(small, w, 1.0)  # w = 0 at 180 degrees: keep inf out of the unused series
+    r2 = n2 / (w_safe * w_safe)
+    # angle / |u| = 2 atan(r) / (r w): its series in r^2 is (2 / w)(1 - r^2/3 + r^4/5).
+    series = (2.0 - r2 * (2.0 / 3.0) + r2 * r2 * 0.4) / w_safe
     scale = torch.where(small, series, 2.0 * torch.atan2(n, w) / n)
     return u * scale
 
@@ -75,8 +75,8 @@ def quat_to_axis_angle(q: Tensor) -> Tensor:
         ``(..., 4)`` -> ``(..., 3)``.
 
     Example:
-        >>> quat_to_axis_angle(torch.tensor([0., 0., 0., -1.]))  # -q is the same rotation
-        tensor([0.0000, 0.0000, 3.1416])
+        >>> quat_to_axis_angle(torch.tensor([-0.5, -0.5, -0.5, -0.5]))  # = 120 deg about (1, 1, 1)
+        tensor([1.2092, 1.2092, 1.2092])
     """
     q, dtype = prepare(q, "quat_to_axis_angle", "q", (4,))
     return restore(quat_to_axis_angle_unchecked(q), dtype)
@@ -85,14 +85,15 @@ def quat_to_axis_angle(q: Tensor) -> Tensor:
 def axis_angle_to_matrix_unchecked(v: Tensor) -> Tensor:
     theta2 = (v * v).sum(-1)
     small = theta2 < small_angle_threshold(v.dtype)
-    theta = torch.sqrt(torch.where(small, 1.0, theta2))
+    safe2 = torch.where(small, 1.0, theta2)  # what the discarded closed forms see near 0
+    theta = torch.sqrt(safe2)
     sin_half = torch.sin(0.5 * theta)
     t4 = theta2 * theta2
     # Rodrigues: R = cos(t) I + (sin t / t) [v]x + ((1 - cos t) / t^2) v v^T, with
     # 1 - cos t written as 2 sin^2(t / 2) so it has no cancellation.
     cos = torch.where(small, 1.0 - theta2 / 2.0 + t4 / 24.0, torch.cos(theta))
     A = torch.where(small, 1.0 - theta2 / 6.0 + t4 / 120.0, torch.sin(theta) / theta)
-    B = torch.where(small, 0.5 - theta2 / 24.0 + t4 / 720.0, 2.0 * sin_half * sin_half / theta2)
+    B = torch.where(small, 0.5 - theta2 / 24.0 + t4 / 720.0, 2.0 * sin_half * sin_half / safe2)
     x, y, z = v.unbind(-1)
     Bx, By, Bz = B * x, B * y, B * z
     Ax, Ay, Az = A * x, A * y, A * z

@@ -103,7 +103,11 @@ class _SpecialProcrustes(torch.autograd.Function):
 
 
 def rot9d_to_matrix_unchecked(M: Tensor) -> Tensor:
-    return _SpecialProcrustes.apply(M)[0]
+    # LAPACK's SVD raises on NaN/inf: give such rows the identity, then NaN, never a crash.
+    finite = torch.isfinite(M).all(-1, keepdim=True).all(-2, keepdim=True)
+    eye = torch.eye(3, dtype=M.dtype, device=M.device)
+    R = _SpecialProcrustes.apply(torch.where(finite, M, eye))[0]
+    return torch.where(finite, R, torch.nan)
 
 
 def rot9d_to_matrix(x: Tensor) -> Tensor:

@@ -1,0 +1,108 @@
+"""The guarantees of SPEC section 3 for every function: batch shapes, purity, row independence,
+torch.compile(fullgraph=True), torch.func.vmap, dtypes and half precision."""
+
+import pytest
+import torch
+
+import torchquat as tq
+from function_table import ALL
+from rotation_samples import BATCH_SHAPES
+
+NAMES = sorted(ALL)
+
+
+def _batched(inputs, shape):
+    """Reshape generic (n, ...) inputs of n >= prod(shape) rows into batch ``shape``."""
+    n = 1
+    for s in shape:
+        n *= s
+    return tuple(x[:n].reshape(*shape, *x.shape[1:]) for x in inputs)
+
+
+@pytest.mark.parametrize("shape", BATCH_SHAPES, ids=str)
+@pytest.mark.parametrize("name", NAMES)
+def test_any_batch_shape_gives_the_same_rows(name, shape):
+    fn, generic, _ = ALL[name]
+    inputs = generic()
+    flat = fn(*inputs)
+    out = fn(*_batched(inputs, shape))
+    n = out.numel() // max(1, flat[0].numel()) if flat.dim() else 1
+    assert out.shape[: len(shape)] == shape
+    assert torch.allclose(out.reshape(-1, *flat.shape[1:]), flat[:n], atol=1e-12, rtol=0)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_inputs_are_never_modified(name):
+    fn, generic, singular = ALL[name]
+    for inputs in (generic(), singular()):
+        before = tuple(x.clone() for x in inputs)
+        fn(*inputs)
+        assert all(torch.equal(a, b) for a, b in zip(inputs, before))
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_each_output_row_depends_only_on_its_own_input_row(name):
+    fn, generic, _ = ALL[name]
+    inputs = generic()
+    out = fn(*inputs)
+    for poison in (float("nan"), 1e30, 0.0):
+        spoiled = tuple(torch.cat([x[:1], torch.full_like(x[1:], poison)]) for x in inputs)
+        assert torch.equal(fn(*spoiled)[0], out[0])
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_runs_under_torch_compile_fullgraph(name):
+    fn, generic, _ = ALL[name]
+    inputs = generic()
+    torch._dynamo.reset()
+    compiled = torch.compile(fn, fullgraph=True, backend="eager")  # tracing is what can break
+    assert torch.allclose(compiled(*inputs), fn(*inputs), atol=1e-12, rtol=0, equal_nan=True)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["quat_to_matrix", "matrix_to_quat", "quat_to_euler[ZYX]", "rot9d_to_matrix"])
+def test_inductor_compiles_forward_and_backward(name):
+    fn, generic, _ = ALL[name]
+    inputs = tuple(x.float().requires_grad_() for x in generic())
+    torch._dynamo.reset()
+    compiled = torch.compile(fn, fullgraph=True)
+    out = compiled(*inputs)
+    ref = fn(*inputs)
+    assert torch.allclose(out, ref, atol=1e-5)
+    g1 = torch.autograd.grad(out.sum(), inputs)
+    g2 = torch.autograd.grad(ref.sum(), inputs)
+    assert all(torch.allclose(a, b, atol=1e-4) for a, b in zip(g1, g2))
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_vmap_matches_the_batched_call(name):
+    fn, generic, _ = ALL[name]
+    inputs = generic()
+    assert torch.allclose(torch.func.vmap(fn)(*inputs), fn(*inputs), atol=1e-12, rtol=0)
+
+
+@pytest.mark.parametrize("dtype", [torch.float16, torch.bfloat16, torch.float32])
+@pytest.mark.parametrize("name", NAMES)
+def test_low_precision_is_computed_in_float32_and_returned_in_its_dtype(name, dtype):
+    fn, generic, _ = ALL[name]
+    inputs = tuple(x.to(dtype) for x in generic())
+    out = fn(*inputs)
+    assert out.dtype == dtype
+    reference = fn(*(x.float() for x in inputs))
+    assert torch.allclose(out.float(), reference.to(dtype).float(), atol=0, rtol=0, equal_nan=True)
+
+
+@pytest.mark.parametrize("name", ["quat_to_matrix", "quat_to_euler[ZYX]", "quat_multiply", "rot6d_to_matrix"])
+def test_gradients_flow_in_half_precision(name):
+    fn, generic, _ = ALL[name]
+    inputs = tuple(x.to(torch.bfloat16).requires_grad_() for x in generic())
+    grads = torch.autograd.grad(fn(*inputs).float().sum(), inputs)
+    assert all(g.dtype == torch.bfloat16 and torch.isfinite(g).all() for g in grads)
+
+
+def test_float32_and_float64_inputs_are_kept():
+    q = torch.randn(3, 4)
+    assert tq.quat_to_matrix(q).dtype == torch.float32
+    assert tq.quat_to_matrix(q.double()).dtype == torch.float64
+    assert tq.random_quat(2).dtype == torch.get_default_dtype()
+    assert tq.random_quat(2, dtype=torch.float16).dtype == torch.float16
