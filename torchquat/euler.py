@@ -172,9 +172,9 @@ def quat_to_euler_unchecked(q: Tensor, conv: EulerConvention, eps: Optional[floa
         middle = middle - math.pi / 2.0
     first = torch.remainder(first + math.pi, 2.0 * math.pi) - math.pi
     third = torch.remainder(third + math.pi, 2.0 * math.pi) - math.pi
-    if extrinsic:
-        return torch.stack((first, middle, third), dim=-1)
-    return torch.stack((third, middle, first), dim=-1)
+    angles = torch.stack((first, middle, third) if extrinsic else (third, middle, first), dim=-1)
+    # a + b + c + d = 0 only for q = 0: no rotation, so NaN rather than a plausible (0, -pi/2, 0).
+    return torch.where((ab2 + cd2 == 0).unsqueeze(-1), torch.nan, angles)
 
 
 def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Optional[float] = None) -> Tensor:

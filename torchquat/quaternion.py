@@ -165,6 +165,7 @@ def quat_rotate(q: Tensor, v: Tensor) -> Tensor:
     check_broadcast("quat_rotate", ("q", "v"), (q, v), (1, 1))
     q, v = common_dtype("quat_rotate", q, v)
     w, u = q[..., :1], q[..., 1:]
+    u, v = torch.broadcast_tensors(u, v)  # linalg.cross wants equal ndim; these are views
     t = torch.linalg.cross(u, v, dim=-1) * (2.0 / (q * q).sum(-1, keepdim=True))
     return restore(v + w * t + torch.linalg.cross(u, t, dim=-1), dtype)
 

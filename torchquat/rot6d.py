@@ -17,7 +17,9 @@ def rot6d_to_matrix_unchecked(x: Tensor) -> Tensor:
     # Collinear to rounding: what is left of a2 is rounding noise, whose direction would be a
     # plausible but arbitrary rotation. Give NaN instead.
     noise = (16.0 * torch.finfo(x.dtype).eps) ** 2 * (a2 * a2).sum(-1, keepdim=True)
-    b2 = b2 * torch.where(n2 > noise, torch.rsqrt(torch.where(n2 > noise, n2, 1.0)), torch.nan)
+    valid = n2 > noise
+    b2 = b2 * torch.where(valid, torch.rsqrt(torch.where(valid, n2, 1.0)), torch.nan)
+    b1 = torch.where(valid, b1, torch.nan)
     b3 = torch.linalg.cross(b1, b2, dim=-1)
     return torch.stack((b1, b2, b3), dim=-1)
 

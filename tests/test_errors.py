@@ -1,0 +1,117 @@
+"""Bad input gets a clear error naming the function, the argument, what was expected and what came."""
+
+import pytest
+import torch
+
+import torchquat as tq
+
+
+@pytest.mark.parametrize("fn, shape, message", [
+    (tq.quat_to_matrix, (5, 3), "quat_to_matrix: expected q of shape (..., 4), got (5, 3)"),
+    (tq.matrix_to_quat, (5, 3), "matrix_to_quat: expected R of shape (..., 3, 3), got (5, 3)"),
+    (tq.matrix_to_quat, (3,), "matrix_to_quat: expected R of shape (..., 3, 3), got (3,)"),
+    (tq.axis_angle_to_quat, (5, 4), "axis_angle_to_quat: expected v of shape (..., 3), got (5, 4)"),
+    (tq.quat_to_axis_angle, (2, 3), "quat_to_axis_angle: expected q of shape (..., 4), got (2, 3)"),
+    (tq.axis_angle_to_matrix, (), "axis_angle_to_matrix: expected v of shape (..., 3), got ()"),
+    (tq.matrix_to_axis_angle, (3, 4), "matrix_to_axis_angle: expected R of shape (..., 3, 3), got (3, 4)"),
+    (tq.rot6d_to_matrix, (9,), "rot6d_to_matrix: expected x of shape (..., 6), got (9,)"),
+    (tq.matrix_to_rot6d, (6,), "matrix_to_rot6d: expected R of shape (..., 3, 3), got (6,)"),
+    (tq.rot9d_to_matrix, (6,), "rot9d_to_matrix: expected x of shape (..., 9) or (..., 3, 3), got (6,)"),
+    (tq.quat_normalize, (3,), "quat_normalize: expected q of shape (..., 4), got (3,)"),
+    (tq.quat_standardize, (3,), "quat_standardize: expected q of shape (..., 4), got (3,)"),
+    (tq.quat_conjugate, (3,), "quat_conjugate: expected q of shape (..., 4), got (3,)"),
+    (tq.quat_inverse, (3,), "quat_inverse: expected q of shape (..., 4), got (3,)"),
+    (tq.quat_wxyz_to_xyzw, (3,), "quat_wxyz_to_xyzw: expected q of shape (..., 4), got (3,)"),
+    (tq.quat_from_jpl, (3,), "quat_from_jpl: expected q of shape (..., 4), got (3,)"),
+])
+def test_wrong_trailing_shape_raises_shape_error(fn, shape, message):
+    with pytest.raises(tq.ShapeError) as err:
+        fn(torch.zeros(shape))
+    assert str(err.value) == message
+    assert isinstance(err.value, ValueError)
+
+
+@pytest.mark.parametrize("fn, args, message", [
+    (tq.euler_to_quat, (torch.zeros(3),), "euler_to_quat: expected angles of shape (..., 3), got (4,)"),
+    (tq.euler_to_matrix, (torch.zeros(3),), "euler_to_matrix: expected angles of shape (..., 3), got (4,)"),
+])
+def test_euler_shape_errors(fn, args, message):
+    with pytest.raises(tq.ShapeError, match=r"expected angles of shape \(\.\.\., 3\), got \(4,\)"):
+        fn(torch.zeros(4), "ZYX")
+
+
+@pytest.mark.parametrize("convention", ["xYz", "XXY", "xyy", "ZY", "ZYXZ", "abc", "", 3, None])
+@pytest.mark.parametrize("fn, x", [
+    (tq.euler_to_quat, torch.zeros(3)), (tq.euler_to_matrix, torch.zeros(3)),
+    (tq.quat_to_euler, torch.tensor([1.0, 0, 0, 0])), (tq.matrix_to_euler, torch.eye(3)),
+    (tq.euler_gimbal_lock, torch.tensor([1.0, 0, 0, 0])),
+])
+def test_invalid_conventions_raise_convention_error(fn, x, convention):
+    with pytest.raises(tq.ConventionError) as err:
+        fn(x, convention)
+    assert str(err.value) == (
+        f"{fn.__name__}: invalid convention {convention!r}: use 3 letters all from 'xyz' (extrinsic) "
+        "or all from 'XYZ' (intrinsic), adjacent letters different, e.g. 'ZYX' or 'zxz'")
+    assert isinstance(err.value, ValueError)
+
+
+def test_convention_has_no_default():
+    with pytest.raises(TypeError):
+        tq.euler_to_quat(torch.zeros(3))
+
+
+@pytest.mark.parametrize("fn, x", [
+    (tq.quat_to_matrix, torch.zeros(2, 4, dtype=torch.int64)),
+    (tq.quat_to_matrix, torch.zeros(2, 4, dtype=torch.bool)),
+    (tq.axis_angle_to_quat, torch.zeros(3, dtype=torch.int32)),
+    (lambda a: tq.euler_to_quat(a, "ZYX"), torch.zeros(3, dtype=torch.int64)),
+])
+def test_integer_input_raises_type_error(fn, x):
+    with pytest.raises(TypeError, match="expected .* to be a floating-point tensor, got dtype"):
+        fn(x)
+
+
+@pytest.mark.parametrize("fn, a, b, message", [
+    (tq.quat_multiply, (2, 4), (3, 4), "quat_multiply: expected p and q with broadcastable batch shapes, got (2,) and (3,)"),
+    (tq.quat_rotate, (2, 4), (3, 3), "quat_rotate: expected q and v with broadcastable batch shapes, got (2,) and (3,)"),
+    (tq.quat_geodesic_distance, (5, 2, 4), (3, 4), "quat_geodesic_distance: expected q1 and q2 with broadcastable batch shapes, got (5, 2) and (3,)"),
+    (tq.matrix_geodesic_distance, (2, 3, 3), (4, 3, 3), "matrix_geodesic_distance: expected R1 and R2 with broadcastable batch shapes, got (2,) and (4,)"),
+])
+def test_batch_shapes_that_do_not_broadcast_raise_shape_error(fn, a, b, message):
+    with pytest.raises(tq.ShapeError) as err:
+        fn(torch.ones(a), torch.ones(b))
+    assert str(err.value) == message
+
+
+def test_slerp_shape_error_and_t_broadcasting():
+    with pytest.raises(tq.ShapeError, match="quat_slerp: expected q0 and q1 with broadcastable batch shapes"):
+        tq.quat_slerp(torch.ones(2, 4), torch.ones(3, 4), 0.5)
+    q0, q1 = tq.random_quat(5), tq.random_quat(5)
+    assert tq.quat_slerp(q0, q1, torch.linspace(0, 1, 5)).shape == (5, 4)
+    assert tq.quat_slerp(q0[0], q1[0], torch.linspace(0, 1, 7)).shape == (7, 4)
+
+
+def test_convert_errors_name_the_problem():
+    with pytest.raises(ValueError, match="convert: unknown representation 'quaternion': use one of"):
+        tq.convert(torch.zeros(4), "quaternion", "matrix")
+    with pytest.raises(tq.ConventionError, match="convert: 'euler' needs a convention"):
+        tq.convert(torch.zeros(3), "euler", "quat")
+    with pytest.raises(tq.ConventionError, match="convert: invalid convention 'XYx'"):
+        tq.convert(torch.zeros(3), "euler:XYx", "quat")
+    with pytest.raises(tq.ShapeError, match=r"convert: expected x of shape \(\.\.\., 6\), got \(5,\) \(for src='rot6d'\)"):
+        tq.convert(torch.zeros(5), "rot6d", "quat")
+
+
+def test_degenerate_input_gives_nan_never_a_plausible_rotation():
+    zero = torch.zeros(4)
+    for fn in (tq.quat_to_matrix, tq.quat_normalize, tq.quat_inverse, tq.quat_to_axis_angle,
+               lambda q: tq.quat_to_euler(q, "ZYX"), lambda q: tq.quat_rotate(q, torch.ones(3))):
+        assert fn(zero).isnan().all()
+    collinear = torch.tensor([1.0, 2.0, 3.0, 2.0, 4.0, 6.0])
+    assert tq.rot6d_to_matrix(collinear).isnan().all()
+    assert tq.rot6d_to_matrix(torch.tensor([1.0, 2.0, 3.0, 0.0, 0.0, 0.0])).isnan().all()
+    assert tq.rot6d_to_matrix(torch.tensor([0.0, 0.0, 0.0, 1.0, 0.0, 0.0])).isnan().all()
+    assert tq.rot9d_to_matrix(torch.full((9,), float("nan"))).isnan().all()
+    # nearly but not exactly collinear is a real rotation
+    R = tq.rot6d_to_matrix(torch.tensor([1.0, 0.0, 0.0, 1.0, 1e-3, 0.0], dtype=torch.float64))
+    assert torch.allclose(R, torch.eye(3, dtype=torch.float64))

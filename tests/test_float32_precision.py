@@ -1,0 +1,67 @@
+"""float32 accuracy where other libraries lose it: round trips within 1e-6 everywhere, gimbal
+lock and its neighbourhood included (PyTorch3D's asin path reaches 1e-4 there), and a rotation
+exactly at lock is detected in float32 as in float64."""
+
+import math
+
+import pytest
+import torch
+
+import torchquat as tq
+from rotation_samples import CONVENTIONS, cube_rotations, lock_angles, singular_and_uniform
+
+F32 = torch.float32
+
+
+@pytest.mark.parametrize("convention", CONVENTIONS)
+def test_matrix_euler_round_trip_within_1e6_near_lock(convention):
+    angles, _ = lock_angles(convention, n=20)
+    R64 = torch.cat([tq.euler_to_matrix(angles, convention), tq.quat_to_matrix(singular_and_uniform())])
+    R = R64.to(F32)
+    back = tq.euler_to_matrix(tq.matrix_to_euler(R, convention), convention)
+    err = (back.double() - R.double()).abs().amax((-2, -1))
+    locked = tq.euler_gimbal_lock(tq.matrix_to_quat(R), convention)
+    # Outside the lock band (exactly at lock, and 1e-5 rad away and beyond) within 1e-6 ...
+    assert err[~locked].max() <= 1e-6
+    # ... inside it (eps = 1e-6) SciPy's rule drops up to ~2 eps of the rotation, no more.
+    assert torch.cat([err[locked], err.new_zeros(1)]).max() <= 2.5e-6
+    exactly, _ = lock_angles(convention, n=20)
+    assert locked[: len(exactly)].any()
+
+
+@pytest.mark.parametrize("convention", CONVENTIONS)
+def test_lock_detected_exactly_at_lock_in_both_dtypes(convention):
+    angles, offset = lock_angles(convention, n=5)
+    at_lock = angles[offset == 0]
+    for dtype in (torch.float64, F32):
+        q = tq.euler_to_quat(at_lock.to(dtype), convention)
+        assert tq.euler_gimbal_lock(q, convention).all()
+        out = tq.quat_to_euler(q, convention)
+        assert (out[:, 2] == 0).all()
+    q = tq.matrix_to_quat(cube_rotations().to(F32))
+    for dtype in (torch.float64, F32):
+        assert torch.equal(tq.euler_gimbal_lock(q.to(dtype), convention),
+                           tq.euler_gimbal_lock(tq.matrix_to_quat(cube_rotations()), convention))
+
+
+def test_away_from_lock_is_not_flagged():
+    angles, offset = lock_angles("ZYX", n=20)
+    q = tq.euler_to_quat(angles[offset >= 1e-5].to(F32), "ZYX")
+    assert not tq.euler_gimbal_lock(q, "ZYX").any()
+
+
+def test_quaternion_matrix_round_trip_float32():
+    q = singular_and_uniform().to(F32)
+    back = tq.matrix_to_quat(tq.quat_to_matrix(q))
+    err = torch.minimum((back - q).abs().amax(-1), (back + q).abs().amax(-1))
+    assert err.max() <= 3e-7
+
+
+def test_axis_angle_float32_at_tiny_and_half_turn_angles():
+    q = singular_and_uniform().to(F32)
+    v = tq.quat_to_axis_angle(q)
+    assert (tq.axis_angle_to_matrix(v) - tq.quat_to_matrix(q)).abs().max() <= 1e-6
+    tiny = torch.tensor([1e-30, 1e-20, 1e-8, 1e-4], dtype=F32)
+    v = torch.stack([tiny, torch.zeros_like(tiny), torch.zeros_like(tiny)], -1)
+    assert torch.equal(tq.quat_to_axis_angle(tq.axis_angle_to_quat(v)), v)
+    assert math.isclose(tq.axis_angle_to_quat(v)[-1, 1].item(), 5e-5, rel_tol=1e-6)

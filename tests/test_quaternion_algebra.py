@@ -1,0 +1,139 @@
+"""Group axioms and the quaternion algebra: products, inverses, layouts, slerp, sampling."""
+
+import math
+
+import pytest
+import torch
+
+import torchquat as tq
+from rotation_samples import uniform
+
+F64 = torch.float64
+
+
+def test_hamilton_rules():
+    one, i, j, k = torch.eye(4, dtype=F64)
+    m = tq.quat_multiply
+    assert torch.equal(m(i, j), k) and torch.equal(m(j, k), i) and torch.equal(m(k, i), j)
+    assert torch.equal(m(i, i), -one) and torch.equal(m(m(i, j), k), -one)
+
+
+def test_product_is_associative_and_composes_matrices():
+    p, q, r = uniform(50, 1), uniform(50, 2), uniform(50, 3)
+    m = tq.quat_multiply
+    assert (m(m(p, q), r) - m(p, m(q, r))).abs().max() <= 1e-15
+    assert (tq.quat_to_matrix(m(p, q)) - tq.quat_to_matrix(p) @ tq.quat_to_matrix(q)).abs().max() <= 1e-14
+
+
+def test_inverse_and_conjugate():
+    q = torch.randn(50, 4, dtype=F64)
+    ident = tq.quat_identity(50, dtype=F64)
+    assert (tq.quat_multiply(q, tq.quat_inverse(q)) - ident).abs().max() <= 1e-14
+    u = tq.quat_normalize(q)
+    assert (tq.quat_multiply(tq.quat_conjugate(u), u) - ident).abs().max() <= 1e-15
+    assert (tq.quat_to_matrix(tq.quat_conjugate(u)) - tq.quat_to_matrix(u).mT).abs().max() <= 1e-15
+
+
+def test_non_unit_quaternions_are_the_rotation_of_their_direction():
+    q = torch.randn(50, 4, dtype=F64) * 7
+    u = q / q.norm(dim=-1, keepdim=True)
+    assert (tq.quat_to_matrix(q) - tq.quat_to_matrix(u)).abs().max() <= 1e-14
+    v = torch.randn(50, 3, dtype=F64)
+    assert (tq.quat_rotate(q, v) - tq.quat_rotate(u, v)).abs().max() <= 1e-14
+
+
+def test_broadcasting_one_rotation_over_many_points():
+    q = uniform(1)[0]
+    v = torch.randn(4, 5, 3, dtype=F64)
+    assert tq.quat_rotate(q, v).shape == (4, 5, 3)
+    assert (tq.quat_rotate(q, v) - v @ tq.quat_to_matrix(q).mT).abs().max() <= 1e-14
+    assert tq.quat_multiply(uniform(3).view(3, 1, 4), uniform(2).view(1, 2, 4)).shape == (3, 2, 4)
+
+
+def test_standardize_picks_one_representative_per_rotation():
+    q = torch.cat([uniform(100), torch.tensor([[0.0, -1.0, 0, 0], [0.0, 0.0, -1.0, 0.0], [0, 0, 0, -1.0],
+                                                [0.0, 0.0, -0.6, 0.8], [-1.0, 0, 0, 0]], dtype=F64)])
+    s = tq.quat_standardize(q)
+    assert torch.equal(tq.quat_standardize(-q), s)
+    assert (s[:, 0] >= 0).all()
+    assert (tq.quat_to_matrix(s) - tq.quat_to_matrix(q)).abs().max() <= 1e-15
+
+
+def test_layout_round_trips():
+    q = uniform(10)
+    assert torch.equal(tq.quat_xyzw_to_wxyz(tq.quat_wxyz_to_xyzw(q)), q)
+    assert torch.equal(tq.quat_wxyz_to_xyzw(q)[:, 3], q[:, 0])
+    assert torch.equal(tq.quat_from_jpl(tq.quat_to_jpl(q)), q)
+
+
+def test_identity():
+    assert torch.equal(tq.quat_identity(), torch.tensor([1.0, 0.0, 0.0, 0.0]))
+    assert tq.quat_identity((2, 3), dtype=F64).shape == (2, 3, 4)
+    assert torch.equal(tq.quat_to_matrix(tq.quat_identity(dtype=F64)), torch.eye(3, dtype=F64))
+
+
+def test_slerp_endpoints_shortest_path_and_constant_speed():
+    q0, q1 = uniform(30, 4), uniform(30, 5)
+    assert (tq.quat_slerp(q0, q1, 0.0) - q0).abs().max() <= 1e-15
+    end = tq.quat_slerp(q0, q1, 1.0)
+    assert (tq.quat_to_matrix(end) - tq.quat_to_matrix(q1)).abs().max() <= 1e-14
+    total = tq.quat_geodesic_distance(q0, q1)
+    for t in (0.25, 0.5, 0.8):
+        mid = tq.quat_slerp(q0, q1, t)
+        assert (mid.norm(dim=-1) - 1).abs().max() <= 1e-14
+        assert (tq.quat_geodesic_distance(q0, mid) - t * total).abs().max() <= 1e-12
+    # the sign of q1 does not change the path
+    assert (tq.quat_slerp(q0, -q1, 0.3) - tq.quat_slerp(q0, q1, 0.3)).abs().max() <= 1e-15
+
+
+def test_slerp_between_equal_and_nearly_equal_rotations():
+    q = uniform(5, 6)
+    assert (tq.quat_slerp(q, q, 0.4) - q).abs().max() <= 1e-15
+    tiny = tq.quat_multiply(q, tq.axis_angle_to_quat(torch.tensor([1e-10, 0.0, 0.0], dtype=F64)))
+    out = tq.quat_slerp(q, tiny, 0.5)
+    assert torch.isfinite(out).all() and (tq.quat_geodesic_distance(out, q) - 0.5e-10).abs().max() <= 1e-15
+
+
+def test_random_quat_is_uniform_on_so3():
+    q = tq.random_quat(200_000, generator=torch.Generator().manual_seed(0), dtype=F64)
+    assert (q.norm(dim=-1) - 1).abs().max() <= 1e-14
+    # Haar measure: E[R] = 0, and the angle has density (1 - cos t) / pi on [0, pi].
+    assert tq.quat_to_matrix(q).mean(0).abs().max() < 0.01
+    angle = tq.quat_geodesic_distance(q, tq.quat_identity(dtype=F64))
+    for t in (0.5, 1.0, 2.0, 3.0):
+        cdf = (t - math.sin(t)) / math.pi
+        assert abs((angle <= t).double().mean().item() - cdf) < 0.005
+
+
+def test_random_quat_generator_dtype_and_shape():
+    a = tq.random_quat((2, 3), generator=torch.Generator().manual_seed(1))
+    b = tq.random_quat((2, 3), generator=torch.Generator().manual_seed(1))
+    assert torch.equal(a, b) and a.shape == (2, 3, 4)
+    assert tq.random_quat(dtype=torch.bfloat16).dtype == torch.bfloat16
+
+
+@pytest.mark.parametrize("src, dst, kwargs", [
+    ("quat", "matrix", {}), ("matrix", "euler", {"convention": "ZYX"}), ("euler:zxz", "axis_angle", {}),
+    ("axis_angle", "rot6d", {}), ("rot6d", "rot9d", {}), ("rot9d", "quat", {}), ("quat_xyzw", "quat", {}),
+])
+def test_convert_agrees_with_the_direct_functions(src, dst, kwargs):
+    q = uniform(20, 7)
+    R = tq.quat_to_matrix(q)
+    conv = kwargs.get("convention") or (src.partition(":")[2] or None)
+    given = {
+        "quat": q, "matrix": R, "axis_angle": tq.quat_to_axis_angle(q), "rot6d": tq.matrix_to_rot6d(R),
+        "rot9d": R.flatten(-2), "quat_xyzw": tq.quat_wxyz_to_xyzw(q),
+        "euler": tq.quat_to_euler(q, conv) if conv else None,
+    }[src.partition(":")[0]]
+    out = tq.convert(given, src, dst, **kwargs)
+    back = tq.convert(out, dst, "matrix", **kwargs)
+    assert (back - R).abs().max() <= 1e-13
+
+
+def test_convert_quaternion_outputs_are_standardized_and_rot9d_takes_matrices():
+    q = -tq.quat_standardize(uniform(10, 8))
+    assert (tq.convert(q, "quat", "quat")[:, 0] >= 0).all()
+    R = tq.quat_to_matrix(q)
+    assert torch.allclose(tq.convert(R, "rot9d", "matrix"), R, atol=1e-14)
+    deg = tq.convert(R, "matrix", "euler", convention="XYZ", degrees=True)
+    assert torch.allclose(deg, tq.matrix_to_euler(R, "XYZ") * 180 / math.pi)
