@@ -4,6 +4,7 @@ Quaternions are ``(w, x, y, z)`` (Hamilton), matrices act on column vectors, Eul
 follow SciPy's rule (``'ZYX'`` intrinsic, ``'xyz'`` extrinsic); see :mod:`torchquat.conventions`.
 """
 
+from ._dispatch import compiled_kernels_enabled, use_compiled_kernels
 from .axis_angle import axis_angle_to_matrix, axis_angle_to_quat, matrix_to_axis_angle, quat_to_axis_angle
 from .conventions import EULER_CONVENTIONS
 from .distance import matrix_geodesic_distance, quat_geodesic_distance
@@ -29,4 +30,5 @@ __all__ = [
     "quat_rotate", "quat_slerp", "quat_identity", "random_quat",
     "quat_wxyz_to_xyzw", "quat_xyzw_to_wxyz", "quat_from_jpl", "quat_to_jpl",
     "quat_geodesic_distance", "matrix_geodesic_distance",
+    "use_compiled_kernels", "compiled_kernels_enabled",
 ]

@@ -8,6 +8,7 @@ are exact to rounding at and near the zero rotation.
 import torch
 from torch import Tensor
 
+from ._dispatch import kernel
 from ._math import small_angle_threshold
 from ._validation import prepare, restore
 from .matrix import matrix_to_quat_unchecked
@@ -16,6 +17,7 @@ from .quaternion import standardize_sign
 __all__ = ["axis_angle_to_quat", "quat_to_axis_angle", "axis_angle_to_matrix", "matrix_to_axis_angle"]
 
 
+@kernel
 def axis_angle_to_quat_unchecked(v: Tensor) -> Tensor:
     theta2 = (v * v).sum(-1, keepdim=True)
     small = theta2 < small_angle_threshold(v.dtype)
@@ -47,6 +49,7 @@ def axis_angle_to_quat(v: Tensor) -> Tensor:
     return restore(axis_angle_to_quat_unchecked(v), dtype)
 
 
+@kernel
 def quat_to_axis_angle_unchecked(q: Tensor) -> Tensor:
     hemisphere = standardize_sign(q)  # shortest arc: use the w >= 0 copy (unique at w == 0 too)
     w = q[..., :1] * hemisphere
@@ -82,6 +85,7 @@ def quat_to_axis_angle(q: Tensor) -> Tensor:
     return restore(quat_to_axis_angle_unchecked(q), dtype)
 
 
+@kernel
 def axis_angle_to_matrix_unchecked(v: Tensor) -> Tensor:
     theta2 = (v * v).sum(-1)
     small = theta2 < small_angle_threshold(v.dtype)
@@ -103,6 +107,11 @@ def axis_angle_to_matrix_unchecked(v: Tensor) -> Tensor:
         Bx * z - Ay, By * z + Ax, cos + Bz * z,
     ), dim=-1)
     return R.unflatten(-1, (3, 3))
+
+
+@kernel
+def matrix_to_axis_angle_unchecked(R: Tensor) -> Tensor:
+    return quat_to_axis_angle_unchecked(matrix_to_quat_unchecked(R))
 
 
 def axis_angle_to_matrix(v: Tensor) -> Tensor:
@@ -141,4 +150,4 @@ def matrix_to_axis_angle(R: Tensor) -> Tensor:
         tensor([0., 0., 0.])
     """
     R, dtype = prepare(R, "matrix_to_axis_angle", "R", (3, 3))
-    return restore(quat_to_axis_angle_unchecked(matrix_to_quat_unchecked(R)), dtype)
+    return restore(matrix_to_axis_angle_unchecked(R), dtype)

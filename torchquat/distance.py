@@ -3,6 +3,7 @@
 import torch
 from torch import Tensor
 
+from ._dispatch import kernel
 from ._math import safe_sqrt
 from ._validation import check_broadcast, common_dtype, prepare, restore
 from .quaternion import normalized
@@ -10,6 +11,7 @@ from .quaternion import normalized
 __all__ = ["quat_geodesic_distance", "matrix_geodesic_distance"]
 
 
+@kernel
 def quat_geodesic_distance_unchecked(q1: Tensor, q2: Tensor) -> Tensor:
     q1, q2 = normalized(q1), normalized(q2)
     q2 = torch.where((q1 * q2).sum(-1, keepdim=True) < 0, -q2, q2)  # q and -q: same rotation
@@ -47,6 +49,7 @@ def quat_geodesic_distance(q1: Tensor, q2: Tensor) -> Tensor:
     return restore(quat_geodesic_distance_unchecked(q1, q2), dtype)
 
 
+@kernel
 def matrix_geodesic_distance_unchecked(R1: Tensor, R2: Tensor) -> Tensor:
     M = R1.mT @ R2
     trace = M.diagonal(dim1=-2, dim2=-1).sum(-1)

@@ -13,6 +13,7 @@ from typing import Dict, Optional, Tuple
 import torch
 from torch import Tensor
 
+from ._dispatch import kernel
 from ._math import safe_sqrt
 from ._validation import prepare, restore
 from .conventions import EULER_CONVENTIONS, EulerConvention, gimbal_eps, parse_convention
@@ -59,6 +60,7 @@ def _table(convention: EulerConvention, like: Tensor) -> Tensor:
     return torch.tensor(_SIGN_TABLES[convention.name], dtype=like.dtype, device=like.device)
 
 
+@kernel
 def euler_to_quat_unchecked(angles: Tensor, convention: EulerConvention) -> Tensor:
     half = angles * 0.5
     cs = torch.stack((torch.cos(half), torch.sin(half)), dim=-1)  # (..., 3, 2)
@@ -94,7 +96,12 @@ def euler_to_quat(angles: Tensor, convention: str, degrees: bool = False) -> Ten
     """
     conv = parse_convention(convention, "euler_to_quat")
     angles, dtype = prepare(angles, "euler_to_quat", "angles", (3,))
-    return restore(euler_to_quat_unchecked(_to_radians(angles, degrees), conv), dtype)
+    return restore(euler_to_quat_unchecked(_to_radians(angles, degrees), convention=conv), dtype)
+
+
+@kernel
+def euler_to_matrix_unchecked(angles: Tensor, convention: EulerConvention) -> Tensor:
+    return quat_to_matrix_unchecked(euler_to_quat_unchecked(angles, convention=convention))
 
 
 def euler_to_matrix(angles: Tensor, convention: str, degrees: bool = False) -> Tensor:
@@ -120,8 +127,7 @@ def euler_to_matrix(angles: Tensor, convention: str, degrees: bool = False) -> T
     """
     conv = parse_convention(convention, "euler_to_matrix")
     angles, dtype = prepare(angles, "euler_to_matrix", "angles", (3,))
-    q = euler_to_quat_unchecked(_to_radians(angles, degrees), conv)
-    return restore(quat_to_matrix_unchecked(q), dtype)
+    return restore(euler_to_matrix_unchecked(_to_radians(angles, degrees), convention=conv), dtype)
 
 
 def _abcd(q: Tensor, conv: EulerConvention):
@@ -153,8 +159,9 @@ def _lock_cases(a, b, c, d, eps: float):
     return ab2, cd2, cd2 <= t2 * ab2, ab2 <= t2 * cd2
 
 
-def quat_to_euler_unchecked(q: Tensor, conv: EulerConvention, eps: Optional[float]) -> Tensor:
-    eps = gimbal_eps(q.dtype) if eps is None else float(eps)
+@kernel
+def quat_to_euler_unchecked(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
+    conv = convention
     (a, b, c, d), sign = _abcd(q, conv)
     ab2, cd2, near_zero, near_pi = _lock_cases(a, b, c, d, eps)
     regular = ~(near_zero | near_pi)
@@ -203,8 +210,13 @@ def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Option
     """
     conv = parse_convention(convention, "quat_to_euler")
     q, dtype = prepare(q, "quat_to_euler", "q", (4,))
-    angles = quat_to_euler_unchecked(q, conv, eps)
+    angles = quat_to_euler_unchecked(q, convention=conv, eps=gimbal_eps(q.dtype) if eps is None else float(eps))
     return restore(angles * (180.0 / math.pi) if degrees else angles, dtype)
+
+
+@kernel
+def matrix_to_euler_unchecked(R: Tensor, convention: EulerConvention, eps: float) -> Tensor:
+    return quat_to_euler_unchecked(matrix_to_quat_unchecked(R), convention=convention, eps=eps)
 
 
 def matrix_to_euler(R: Tensor, convention: str, degrees: bool = False, eps: Optional[float] = None) -> Tensor:
@@ -231,7 +243,7 @@ def matrix_to_euler(R: Tensor, convention: str, degrees: bool = False, eps: Opti
     """
     conv = parse_convention(convention, "matrix_to_euler")
     R, dtype = prepare(R, "matrix_to_euler", "R", (3, 3))
-    angles = quat_to_euler_unchecked(matrix_to_quat_unchecked(R), conv, eps)
+    angles = matrix_to_euler_unchecked(R, convention=conv, eps=gimbal_eps(R.dtype) if eps is None else float(eps))
     return restore(angles * (180.0 / math.pi) if degrees else angles, dtype)
 
 

@@ -3,12 +3,14 @@
 import torch
 from torch import Tensor
 
+from ._dispatch import kernel
 from ._validation import prepare, restore
 from .quaternion import standardize_sign
 
 __all__ = ["quat_to_matrix", "matrix_to_quat"]
 
 
+@kernel
 def quat_to_matrix_unchecked(q: Tensor) -> Tensor:
     """Homogeneous form divided by ``|q|^2``: the rotation of ``q / |q|``, NaN for ``q = 0``."""
     w, x, y, z = q.unbind(-1)
@@ -50,6 +52,7 @@ def quat_to_matrix(q: Tensor) -> Tensor:
     return restore(quat_to_matrix_unchecked(q), dtype)
 
 
+@kernel
 def matrix_to_quat_unchecked(R: Tensor) -> Tensor:
     """Shepperd's method (1978), branch-free, returning ``w >= 0``.
 

@@ -3,12 +3,14 @@
 import torch
 from torch import Tensor
 
+from ._dispatch import kernel
 from ._validation import prepare, restore
 from .errors import ShapeError
 
 __all__ = ["rot6d_to_matrix", "matrix_to_rot6d", "rot9d_to_matrix"]
 
 
+@kernel
 def rot6d_to_matrix_unchecked(x: Tensor) -> Tensor:
     a1, a2 = x[..., :3], x[..., 3:]
     b1 = a1 * torch.rsqrt((a1 * a1).sum(-1, keepdim=True))  # NaN for a zero first column
@@ -104,6 +106,7 @@ class _SpecialProcrustes(torch.autograd.Function):
         return U @ Z @ Vh
 
 
+@kernel
 def rot9d_to_matrix_unchecked(M: Tensor) -> Tensor:
     # LAPACK's SVD raises on NaN/inf: give such rows the identity, then NaN, never a crash.
     finite = torch.isfinite(M).all(-1, keepdim=True).all(-2, keepdim=True)

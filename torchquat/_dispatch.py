@@ -1,0 +1,71 @@
+"""Optional ``torch.compile``'d kernels, switched on with :func:`use_compiled_kernels`.
+
+Eager PyTorch pays one pass over memory and one dispatch per elementwise operation; a rotation
+conversion is 20 to 40 of them. Inductor fuses each kernel into a single loop that runs at the
+memory floor for large batches and trims the per-call overhead for single rotations. The price
+is a compile of a few seconds per kernel on first use (cached on disk by inductor), and a C++
+compiler at run time, so the path is opt-in. The eager code is the same source: inside a user's
+own ``torch.compile`` region, under ``torch.func`` transforms, or when switched off, the eager
+kernel runs and is traced as usual.
+"""
+
+import functools
+import os
+from typing import Callable, Dict, Tuple
+
+import torch
+
+__all__ = ["use_compiled_kernels", "compiled_kernels_enabled", "kernel"]
+
+_enabled = os.environ.get("TORCHQUAT_COMPILE", "0").lower() in ("1", "true", "yes", "on")
+_compiled: Dict[Tuple, Callable] = {}
+
+
+def use_compiled_kernels(enabled: bool = True) -> None:
+    """Route every conversion through ``torch.compile``'d kernels (or back to eager).
+
+    Also set by the environment variable ``TORCHQUAT_COMPILE=1``. Results are the same to
+    rounding; gradients are first-order only on this path (double backward needs eager).
+
+    Args:
+        enabled: True to use compiled kernels, False for plain eager PyTorch (the default).
+
+    Example:
+        >>> use_compiled_kernels(False)
+        >>> compiled_kernels_enabled()
+        False
+    """
+    global _enabled
+    _enabled = bool(enabled)
+
+
+def compiled_kernels_enabled() -> bool:
+    """Whether :func:`use_compiled_kernels` is on."""
+    return _enabled
+
+
+def _compiled_for(fn: Callable, static: Tuple) -> Callable:
+    key = (fn, static)
+    compiled = _compiled.get(key)
+    if compiled is None:
+        bound = functools.partial(fn, **dict(static)) if static else fn
+        compiled = _compiled[key] = torch.compile(bound, dynamic=True, fullgraph=True)
+    return compiled
+
+
+def kernel(fn: Callable) -> Callable:
+    """Mark an unchecked kernel ``fn(*tensors, **static_options)`` as compilable.
+
+    Static options (an Euler convention, an ``eps``) are bound before compiling, so each
+    combination gets its own graph and dynamo never guards on them.
+    """
+
+    @functools.wraps(fn)
+    def dispatch(*tensors, **static):
+        if (_enabled and not torch.compiler.is_compiling()
+                and not torch._C._are_functorch_transforms_active()):
+            return _compiled_for(fn, tuple(sorted(static.items())))(*tensors)
+        return fn(*tensors, **static)
+
+    dispatch.eager = fn
+    return dispatch
