@@ -18,6 +18,8 @@ from .quaternion import (
 from .registry import REPRESENTATIONS, convert
 from .rot6d import matrix_to_rot6d, rot6d_to_matrix, rot9d_to_matrix
 
+from . import nn  # noqa: E402  (torchquat.nn: layers, heads, losses)
+
 __version__ = "0.1.0"
 
 __all__ = [

@@ -21,3 +21,32 @@ def small_angle_threshold(dtype: torch.dtype) -> float:
     no cancellation worse than ``eps / t``, so both values and gradients stay accurate.
     """
     return torch.finfo(dtype).eps ** 0.5
+
+
+SMALL_BATCH_ROWS = 4096
+"""Batches up to this many rows take the few-operation paths (constant tables and small matmuls),
+where per-operation dispatch dominates; larger ones take elementwise paths that make fewer passes
+over memory. Both give the same results to rounding; the tests run both."""
+
+
+def is_small(x: Tensor, row_numel: int) -> bool:
+    """Whether ``x`` (rows of ``row_numel`` numbers) is a small batch (a shape test, not data)."""
+    return x.numel() <= SMALL_BATCH_ROWS * row_numel
+
+
+_CONSTANTS = {}
+
+
+def constant(name: str, values, like: Tensor) -> Tensor:
+    """A constant table in ``like``'s dtype and device, built once per (dtype, device).
+
+    Inside a ``torch.compile`` trace it is built inline (it becomes a graph constant) rather than
+    taken from the cache, so tracing has no side effects.
+    """
+    if torch.compiler.is_compiling():
+        return torch.tensor(values, dtype=like.dtype, device=like.device)
+    key = (name, like.dtype, like.device)
+    table = _CONSTANTS.get(key)
+    if table is None:
+        table = _CONSTANTS[key] = torch.tensor(values, dtype=like.dtype, device=like.device)
+    return table
