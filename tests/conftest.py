@@ -1,0 +1,14 @@
+"""Shared, generic fixtures."""
+
+from pathlib import Path
+
+import pytest
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    """The directory of real benchmark pose files (../shared/data beside the repository)."""
+    path = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+    if not path.is_dir():
+        pytest.skip(f"real pose files not found at {path} (they live outside the repository)")
+    return path

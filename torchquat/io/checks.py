@@ -1,0 +1,109 @@
+"""Checks and small repairs of rotations read from files, and the report of what was done.
+
+Tolerances (stated once, quoted in messages):
+
+* quaternions: ``|norm - 1| < 1e-3`` is accepted and normalised (counted when above 1e-6,
+  which text with 6 decimals can explain); anything further is an error.
+* matrices: orthogonality error ``max |R^T R - I|`` below 1e-5 is accepted as written
+  (KITTI's 7 significant digits give about 1e-7); up to 1e-2 the matrix is projected onto the
+  nearest rotation by SVD (``torchquat.convert(R, "rot9d", "matrix")``) and counted; beyond
+  that, or ``det(R) < 0``, it is an error.
+"""
+
+from collections import Counter
+from typing import List, Tuple
+
+import numpy as np
+import torch
+
+from ..registry import convert
+from .poses import PoseFileError
+
+__all__ = ["Report", "normalize_quaternions", "check_matrices", "QUAT_NORM_TOLERANCE",
+           "ORTHOGONALITY_TOLERANCE", "ORTHOGONALITY_ACCEPTED"]
+
+QUAT_NORM_TOLERANCE = 1e-3
+QUAT_NORM_REPORTED = 1e-6
+ORTHOGONALITY_ACCEPTED = 1e-5
+ORTHOGONALITY_TOLERANCE = 1e-2
+
+
+class Report:
+    """What a conversion assumed and repaired, for the command line to print on stderr."""
+
+    def __init__(self):
+        self.notes: List[str] = []
+        self.counts: Counter = Counter()
+        self.worst: dict = {}
+
+    def note(self, text: str) -> None:
+        if text not in self.notes:
+            self.notes.append(text)
+
+    def count(self, what: str, n: int, worst: float = 0.0) -> None:
+        if n:
+            self.counts[what] += n
+            self.worst[what] = max(self.worst.get(what, 0.0), worst)
+
+    def lines(self) -> List[str]:
+        out = list(self.notes)
+        for what, n in self.counts.items():
+            out.append(f"{what}: {n} (largest deviation {self.worst[what]:.2g})")
+        return out
+
+
+def normalize_quaternions(path, q: np.ndarray, line_numbers: np.ndarray, report: Report) -> np.ndarray:
+    """Divide each quaternion by its norm; raise for norms off by ``QUAT_NORM_TOLERANCE`` or more.
+
+    Args:
+        path: file name for messages.
+        q: ``(n, 4)`` float64 quaternions in any component order.
+        line_numbers: ``(n,)`` line of each row.
+        report: collects the count of normalised rows.
+
+    Returns:
+        The unit quaternions.
+    """
+    norm = np.sqrt(np.einsum("ij,ij->i", q, q))
+    deviation = np.abs(norm - 1)
+    bad = deviation >= QUAT_NORM_TOLERANCE
+    if bad.any():
+        row = int(np.argmax(bad))
+        raise PoseFileError(path, f"quaternion norm {norm[row]:.6g} is not 1 (|norm - 1| must be below "
+                            f"{QUAT_NORM_TOLERANCE:g} to be normalised)", int(line_numbers[row]))
+    reported = deviation > QUAT_NORM_REPORTED
+    report.count(f"quaternions normalised (|norm - 1| < {QUAT_NORM_TOLERANCE:g})", int(reported.sum()),
+                 float(deviation.max(initial=0.0)))
+    unit = deviation <= 4 * np.finfo(np.float64).eps  # already unit to rounding: keep the bits as written
+    return np.where(unit[:, None], q, q / norm[:, None])
+
+
+def check_matrices(path, R: np.ndarray, line_numbers: np.ndarray, report: Report) -> Tuple[np.ndarray, int]:
+    """Accept, project or reject rotation matrices by their orthogonality error.
+
+    Args:
+        path: file name for messages.
+        R: ``(n, 3, 3)`` float64 matrices.
+        line_numbers: ``(n,)`` line of each row.
+        report: collects the count of projected matrices.
+
+    Returns:
+        The matrices (projected where needed) and how many were projected.
+    """
+    gram = np.einsum("nki,nkj->nij", R, R) - np.eye(3)
+    error = np.abs(gram).reshape(len(R), 9).max(axis=1, initial=0.0)
+    det = np.einsum("ni,ni->n", R[:, 0], np.cross(R[:, 1], R[:, 2]))
+    bad = (error >= ORTHOGONALITY_TOLERANCE) | (det <= 0)
+    if bad.any():
+        row = int(np.argmax(bad))
+        why = "a reflection (det < 0)" if det[row] <= 0 else f"not a rotation (max |R^T R - I| = {error[row]:.3g})"
+        raise PoseFileError(path, f"matrix is {why}; at most {ORTHOGONALITY_TOLERANCE:g} is projected "
+                            "onto the nearest rotation", int(line_numbers[row]))
+    project = np.flatnonzero(error >= ORTHOGONALITY_ACCEPTED)
+    if project.size:
+        R = R.copy()
+        R[project] = convert(torch.from_numpy(R[project]), "rot9d", "matrix").numpy()
+        report.count(f"matrices projected onto the nearest rotation ({ORTHOGONALITY_ACCEPTED:g} <= "
+                     f"max |R^T R - I| < {ORTHOGONALITY_TOLERANCE:g})", int(project.size),
+                     float(error[project].max()))
+    return R, int(project.size)

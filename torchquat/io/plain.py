@@ -1,0 +1,224 @@
+"""Plain pose files: ``.csv`` with a header naming the representation, ``.npz`` and ``.npy``.
+
+CSV columns: ``timestamp`` (when there are times), ``x,y,z`` (when there are positions), then
+the rotation columns, named so that reading the file back recovers the representation:
+
+==============  ==============================================
+``quat``        ``qw,qx,qy,qz``
+``quat_xyzw``   ``qx,qy,qz,qw``
+``matrix``      ``r00,r01,...,r22`` (row-major; also ``rot9d``)
+``euler:SEQ``   ``SEQ_1,SEQ_2,SEQ_3``, ``SEQ_1_deg,...`` in degrees
+``axis_angle``  ``ax,ay,az``
+``rot6d``       ``r6_1,...,r6_6``
+==============  ==============================================
+"""
+
+import re
+from typing import BinaryIO, Iterator, List, Optional, Tuple
+
+import numpy as np
+import torch
+
+from ..registry import REPRESENTATIONS
+from .checks import Report, check_matrices, normalize_quaternions
+from .formats import positions_of, time_fields
+from .numtext import format_floats, format_rows
+from .poses import PoseFileError, Poses
+from .textparse import decimal_seconds_to_ns, iter_line_chunks, parse_table, read_header
+
+__all__ = ["rotation_columns", "parse_columns", "read_csv", "read_npz", "read_npy", "CsvWriter", "NpzWriter",
+           "NpyWriter", "representation_of_shape"]
+
+_FIXED = {
+    "quat": ["qw", "qx", "qy", "qz"],
+    "quat_xyzw": ["qx", "qy", "qz", "qw"],
+    "matrix": [f"r{i}{j}" for i in range(3) for j in range(3)],
+    "axis_angle": ["ax", "ay", "az"],
+    "rot6d": [f"r6_{i}" for i in range(1, 7)],
+}
+_EULER = re.compile(r"^([xyzXYZ]{3})_([123])(_deg)?$")
+
+
+def rotation_columns(representation: str, degrees: bool = False) -> List[str]:
+    """Column names of a rotation representation in a plain CSV file.
+
+    Example:
+        >>> rotation_columns("euler:ZYX", degrees=True)
+        ['ZYX_1_deg', 'ZYX_2_deg', 'ZYX_3_deg']
+    """
+    name, _, convention = representation.partition(":")
+    if name == "euler":
+        return [f"{convention}_{i}{'_deg' if degrees else ''}" for i in (1, 2, 3)]
+    return _FIXED["matrix" if name == "rot9d" else name]
+
+
+def parse_columns(path, names: List[str]) -> Tuple[bool, bool, str, bool]:
+    """From a header: (has timestamp, has positions, representation, degrees)."""
+    rest = list(names)
+    has_time = bool(rest) and rest[0] == "timestamp"
+    rest = rest[1:] if has_time else rest
+    has_position = rest[:3] == ["x", "y", "z"]
+    rest = rest[3:] if has_position else rest
+    for name, columns in _FIXED.items():
+        if rest == columns:
+            return has_time, has_position, name, False
+    found = [_EULER.match(c) for c in rest]
+    if len(rest) == 3 and all(found) and len({m.group(1) for m in found}) == 1 \
+            and [m.group(2) for m in found] == ["1", "2", "3"] and len({m.group(3) for m in found}) == 1:
+        return has_time, has_position, f"euler:{found[0].group(1)}", found[0].group(3) is not None
+    raise PoseFileError(path, f"unrecognised CSV header {','.join(names)!r}: expected [timestamp,][x,y,z,] then "
+                        "qw,qx,qy,qz | qx,qy,qz,qw | r00..r22 | SEQ_1,SEQ_2,SEQ_3[_deg] | ax,ay,az | r6_1..r6_6", 1)
+
+
+def _checked(path, rotations: np.ndarray, representation: str, lines: np.ndarray, report: Report) -> np.ndarray:
+    if representation.startswith("quat"):
+        return normalize_quaternions(path, rotations, lines, report)
+    if representation == "matrix":
+        return check_matrices(path, rotations, lines, report)[0]
+    return rotations
+
+
+def read_csv(path, stream: BinaryIO, chunk_lines: int, report: Report, **_) -> Iterator[Poses]:
+    """Yield poses from a plain CSV file whose header names the columns."""
+    header, header_lines = read_header(stream)
+    names = [n.strip() for n in header.decode("utf-8", "replace").lstrip("#").strip().split(",")]
+    has_time, has_position, representation, degrees = parse_columns(path, names)
+    shape = REPRESENTATIONS[representation.partition(":")[0]].shape
+    start = int(has_time) + 3 * has_position
+    for chunk in iter_line_chunks(stream, chunk_lines, first_line=header_lines + 1):
+        table = parse_table(path, chunk, (len(names),), f"CSV columns {','.join(names)}", delimiter=b",",
+                            keep_first_text=has_time)
+        if len(table.values) == 0:
+            continue
+        values = table.values
+        rotations = np.ascontiguousarray(values[:, start:]).reshape(len(values), *shape)
+        rotations = _checked(path, rotations, representation, table.line_numbers, report)
+        yield Poses(torch.from_numpy(rotations), representation, degrees=degrees,
+                    positions=torch.from_numpy(values[:, start - 3:start].copy()) if has_position else None,
+                    timestamps=values[:, 0].copy() if has_time else None,
+                    timestamps_ns=decimal_seconds_to_ns(table.first_fields) if has_time else None)
+
+
+def representation_of_shape(path, shape: Tuple[int, ...]) -> str:
+    """Guess the representation of a bare rotation array from its trailing shape."""
+    guesses = {(4,): "quat", (3, 3): "matrix", (9,): "rot9d", (6,): "rot6d", (3,): "axis_angle"}
+    found = guesses.get(tuple(shape[1:]))
+    if found is None or len(shape) < 2:
+        raise PoseFileError(path, f"cannot tell the rotation representation of an array of shape {shape}: "
+                            "expected (n, 4), (n, 3, 3), (n, 9), (n, 6) or (n, 3)")
+    return found
+
+
+def _array_chunks(poses: Poses, chunk_lines: int) -> Iterator[Poses]:
+    for start in range(0, len(poses), chunk_lines):
+        yield poses[start:start + chunk_lines]
+
+
+def _float_array(path, array: np.ndarray, what: str) -> np.ndarray:
+    if not np.issubdtype(array.dtype, np.floating):
+        raise PoseFileError(path, f"{what} must be a floating-point array, got dtype {array.dtype}")
+    finite = np.isfinite(array.reshape(len(array), -1)).all(axis=1) if array.size else np.ones(0, bool)
+    if not finite.all():
+        raise PoseFileError(path, f"{what} row {int(np.argmin(finite))} is not finite (nan or inf)")
+    return array
+
+
+def _checked_array(path, rotations: np.ndarray, representation: str, report: Report) -> np.ndarray:
+    rows = np.arange(len(rotations))  # reported as rows, not lines
+    try:
+        return _checked(path, rotations.astype(np.float64), representation, rows, report)
+    except PoseFileError as err:
+        raise PoseFileError(path, f"rotation row {err.line}: {err.problem}") from None
+
+
+def read_npz(path, stream: BinaryIO, chunk_lines: int, report: Report, **_) -> Iterator[Poses]:
+    """Yield poses from an ``.npz`` holding ``rotation``, ``representation`` and optional times and positions."""
+    with np.load(stream, allow_pickle=False) as data:
+        if "rotation" not in data or "representation" not in data:
+            raise PoseFileError(path, "an .npz pose file needs arrays 'rotation' and 'representation'")
+        representation = str(data["representation"])
+        degrees = bool(data["degrees"]) if "degrees" in data else False
+        rotations = _checked_array(path, _float_array(path, data["rotation"], "rotation"), representation, report)
+        position = _float_array(path, data["position"], "position") if "position" in data else None
+        seconds = data["timestamp"] if "timestamp" in data else None
+        ns = data["timestamp_ns"] if "timestamp_ns" in data else None
+    poses = Poses(torch.from_numpy(rotations), representation, degrees=degrees,
+                  positions=None if position is None else torch.from_numpy(position.astype(np.float64)),
+                  timestamps=seconds, timestamps_ns=ns)
+    yield from _array_chunks(poses, chunk_lines)
+
+
+def read_npy(path, stream: BinaryIO, chunk_lines: int, report: Report, **_) -> Iterator[Poses]:
+    """Yield rotations from an ``.npy`` array; the representation is guessed from its shape."""
+    rotations = _float_array(path, np.load(stream, allow_pickle=False), "rotation")
+    representation = representation_of_shape(path, rotations.shape)
+    report.note(f"{path}: an array of shape {rotations.shape} read as {representation!r}")
+    rotations = _checked_array(path, rotations, representation, report)
+    yield from _array_chunks(Poses(torch.from_numpy(rotations), representation), chunk_lines)
+
+
+class CsvWriter:
+    """Plain CSV with a header; the columns are decided by the first chunk."""
+
+    def __init__(self, stream: BinaryIO, report: Report, dtype=np.float64, representation: str = "quat",
+                 degrees: bool = False):
+        self.stream, self.report, self.dtype = stream, report, dtype
+        self.representation, self.degrees, self.rows = representation, degrees, 0
+        self.columns: Optional[Tuple[bool, bool]] = None
+
+    def write(self, poses: Poses) -> None:
+        if self.columns is None:
+            self.columns = (poses.timestamps is not None, poses.positions is not None)
+            names = (["timestamp"] if self.columns[0] else []) + (["x", "y", "z"] if self.columns[1] else [])
+            names += rotation_columns(self.representation, self.degrees)
+            self.stream.write((",".join(names) + "\n").encode())
+        if not len(poses):
+            return
+        poses = poses.to(self.representation, degrees=self.degrees)
+        fields = [time_fields(poses, self.report, self.rows)] if self.columns[0] else []
+        values = [positions_of(poses, self.dtype, self.report)] if self.columns[1] else []
+        values.append(poses.rotations.numpy().reshape(len(poses), -1).astype(self.dtype, copy=False))
+        fields.append(format_floats(np.concatenate(values, axis=1)))
+        self.stream.write(format_rows(fields, ","))
+        self.rows += len(poses)
+
+    def close(self) -> None:
+        if self.columns is None:
+            raise PoseFileError(getattr(self.stream, "name", "output"), "no poses to write")
+
+
+class NpyWriter:
+    """``.npy``: the rotation array alone (kept in memory until closed)."""
+
+    def __init__(self, stream: BinaryIO, report: Report, dtype=np.float64, representation: str = "quat",
+                 degrees: bool = False):
+        self.stream, self.report, self.dtype = stream, report, dtype
+        self.representation, self.degrees = representation, degrees
+        self.parts: List[Poses] = []
+
+    def write(self, poses: Poses) -> None:
+        self.parts.append(poses.to(self.representation, degrees=self.degrees))
+
+    def _rotations(self) -> np.ndarray:
+        return np.concatenate([p.rotations.numpy() for p in self.parts]).astype(self.dtype, copy=False)
+
+    def close(self) -> None:
+        if self.representation.startswith("euler") or self.representation == "quat_xyzw":
+            self.report.note(f"an .npy file holds no representation name: it will read back by shape, "
+                             f"not as {self.representation!r}")
+        np.save(self.stream, self._rotations())
+
+
+class NpzWriter(NpyWriter):
+    """``.npz``: arrays ``timestamp``, ``timestamp_ns``, ``position``, ``rotation``, ``representation``, ``degrees``."""
+
+    def close(self) -> None:
+        arrays = {"rotation": self._rotations(), "representation": np.array(self.representation),
+                  "degrees": np.array(self.degrees)}
+        if all(p.positions is not None for p in self.parts):
+            arrays["position"] = np.concatenate([p.positions.numpy() for p in self.parts]).astype(self.dtype)
+        if all(p.timestamps is not None for p in self.parts):
+            arrays["timestamp"] = np.concatenate([p.timestamps for p in self.parts]).astype(np.float64)
+        if all(p.timestamps_ns is not None for p in self.parts):
+            arrays["timestamp_ns"] = np.concatenate([p.timestamps_ns for p in self.parts])
+        np.savez(self.stream, **arrays)
