@@ -14,7 +14,7 @@ import torch
 from torch import Tensor
 
 from ._dispatch import kernel
-from ._math import safe_sqrt
+from ._math import constant, safe_sqrt
 from ._validation import prepare, restore
 from .conventions import EULER_CONVENTIONS, EulerConvention, gimbal_eps, parse_convention
 from .matrix import matrix_to_quat_unchecked, quat_to_matrix_unchecked
@@ -57,7 +57,7 @@ _SIGN_TABLES: Dict[str, Tuple[Tuple[int, ...], ...]] = {
 
 
 def _table(convention: EulerConvention, like: Tensor) -> Tensor:
-    return torch.tensor(_SIGN_TABLES[convention.name], dtype=like.dtype, device=like.device)
+    return constant("euler_signs_" + convention.name, _SIGN_TABLES[convention.name], like)
 
 
 @kernel

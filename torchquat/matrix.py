@@ -78,6 +78,25 @@ def quat_to_matrix(q: Tensor) -> Tensor:
     return restore(quat_to_matrix_unchecked(q), dtype)
 
 
+def _shepperd_tables():
+    """``vals = R.flatten() @ T + c`` holds ``(4w^2, 4x^2, 4y^2, 4z^2, 4wx, 4wy, 4wz, 4xy, 4xz, 4yz)``;
+    row ``k`` of ``ROWS`` indexes the entries of ``4 q_k q`` in it."""
+    names = ["r00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22"]
+    columns = [
+        {"r00": 1, "r11": 1, "r22": 1}, {"r00": 1, "r11": -1, "r22": -1},
+        {"r00": -1, "r11": 1, "r22": -1}, {"r00": -1, "r11": -1, "r22": 1},
+        {"r21": 1, "r12": -1}, {"r02": 1, "r20": -1}, {"r10": 1, "r01": -1},
+        {"r10": 1, "r01": 1}, {"r02": 1, "r20": 1}, {"r21": 1, "r12": 1},
+    ]
+    table = [[float(col.get(name, 0)) for col in columns] for name in names]
+    offset = [1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+    rows = [[0, 4, 5, 6], [4, 1, 7, 8], [5, 7, 2, 9], [6, 8, 9, 3]]
+    return table, offset, rows
+
+
+_SHEPPERD, _SHEPPERD_OFFSET, _SHEPPERD_ROWS = _shepperd_tables()
+
+
 @kernel
 def matrix_to_quat_unchecked(R: Tensor) -> Tensor:
     """Shepperd's method (1978), branch-free, returning ``w >= 0``.
@@ -85,27 +104,16 @@ def matrix_to_quat_unchecked(R: Tensor) -> Tensor:
     Each of ``4w^2, 4x^2, 4y^2, 4z^2`` is a linear function of R's diagonal; the largest of them
     is at least 1, so dividing the matching row of the symmetric matrix ``4 q q^T`` by its norm
     never loses precision (unlike the trace formula near 180 degrees). The choice is made with
-    ``argmax`` and ``gather``, so there is no data-dependent branch and no device sync.
+    ``argmax`` and ``gather``, so there is no data-dependent branch and no device sync; all ten
+    distinct entries of ``4 q q^T`` come from one small matmul.
     """
-    m = R.flatten(-2)
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = m.unbind(-1)
-    d0 = 1.0 + r00 + r11 + r22
-    d1 = 1.0 + r00 - r11 - r22
-    d2 = 1.0 - r00 + r11 - r22
-    d3 = 1.0 - r00 - r11 + r22
-    a, b, c = r21 - r12, r02 - r20, r10 - r01  # 4w(x, y, z)
-    e, f, g = r10 + r01, r02 + r20, r21 + r12  # 4xy, 4xz, 4yz
-    rows = torch.stack((
-        d0, a, b, c,
-        a, d1, e, f,
-        b, e, d2, g,
-        c, f, g, d3,
-    ), dim=-1).unflatten(-1, (4, 4))
-    best = torch.stack((d0, d1, d2, d3), dim=-1).argmax(dim=-1)
-    index = best[..., None, None].expand(*best.shape, 1, 4)
-    row = rows.gather(-2, index).squeeze(-2)
-    q = row * torch.rsqrt((row * row).sum(-1, keepdim=True))
-    return q * standardize_sign(q)
+    vals = R.flatten(-2) @ constant("shepperd", _SHEPPERD, R) + constant("shepperd_offset", _SHEPPERD_OFFSET, R)
+    best = vals[..., :4].argmax(-1)
+    rows = constant("shepperd_rows", _SHEPPERD_ROWS, best)
+    row = vals.gather(-1, rows[best])
+    # Normalise and make it canonical (w >= 0; see standardize_sign) with one multiplication.
+    scale = torch.rsqrt((row * row).sum(-1, keepdim=True)) * standardize_sign(row)
+    return row * scale
 
 
 def matrix_to_quat(R: Tensor) -> Tensor:
