@@ -130,58 +130,70 @@ def euler_to_matrix(angles: Tensor, convention: str, degrees: bool = False) -> T
     return restore(euler_to_matrix_unchecked(_to_radians(angles, degrees), convention=conv), dtype)
 
 
-def _abcd(q: Tensor, conv: EulerConvention):
-    """Bernardes and Viollet's permuted quaternion ``(a, b, c, d)`` and the axis bookkeeping.
+def _abcd_table(conv: EulerConvention):
+    """Bernardes and Viollet's permuted quaternion ``(a, b, c, d) = q @ P`` and the sign.
 
     The method works on extrinsic sequences; an intrinsic one is the reversed extrinsic one
     with its angles reversed. A Tait-Bryan sequence is rotated onto the proper-Euler form by
     the fixed 90-degree change ``a = w - q_j`` etc. and its middle angle shifted by pi/2.
+    The change is linear in ``q``, so it is one 4 x 4 matrix per convention.
     """
     i, j, k = conv.axes if not conv.intrinsic else conv.axes[::-1]
     if conv.symmetric:
         k = 3 - i - j
     sign = (i - j) * (j - k) * (k - i) // 2  # +1 for an even permutation of xyz, -1 otherwise
-    w, qi, qj, qk = q[..., 0], q[..., i + 1], q[..., j + 1], q[..., k + 1] * sign
+    w, qi, qj, qk = 0, i + 1, j + 1, k + 1  # rows of P: which input component
     if conv.symmetric:
-        return (w, qi, qj, qk), sign
-    return (w - qj, qi + qk, qj + w, qk - qi), sign
+        columns = [{w: 1}, {qi: 1}, {qj: 1}, {qk: sign}]
+    else:
+        columns = [{w: 1, qj: -1}, {qi: 1, qk: sign}, {qj: 1, w: 1}, {qk: sign, qi: -1}]
+    table = [[float(col.get(row, 0)) for col in columns] for row in range(4)]
+    return table, sign
 
 
-def _lock_cases(a, b, c, d, eps: float):
-    """Which rows are within ``eps`` of gimbal lock, tested without losing precision.
+_ABCD = {name: _abcd_table(conv) for name, conv in EULER_CONVENTIONS.items()}
+
+
+def _lock_cases(q: Tensor, conv: EulerConvention, eps: float):
+    """``(a, b, c, d)``, ``(|(a, b)|^2, |(c, d)|^2)`` and which rows are within ``eps`` of lock.
 
     The middle angle (before any pi/2 shift) is ``2 atan2(|(c, d)|, |(a, b)|)``; it is within
     ``eps`` of 0 iff ``|(c, d)| <= tan(eps / 2) |(a, b)|`` and within ``eps`` of pi iff
     ``|(a, b)| <= tan(eps / 2) |(c, d)|``. Neither side subtracts nearly equal numbers.
     """
-    ab2, cd2 = a * a + b * b, c * c + d * d
+    abcd = q @ constant("abcd_" + conv.name, _ABCD[conv.name][0], q)
+    norms2 = (abcd * abcd).unflatten(-1, (2, 2)).sum(-1)
+    ab2, cd2 = norms2.unbind(-1)
     t2 = math.tan(eps / 2.0) ** 2
-    return ab2, cd2, cd2 <= t2 * ab2, ab2 <= t2 * cd2
+    return abcd, norms2, cd2 <= t2 * ab2, ab2 <= t2 * cd2
 
 
 @kernel
 def quat_to_euler_unchecked(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
-    conv = convention
-    (a, b, c, d), sign = _abcd(q, conv)
-    ab2, cd2, near_zero, near_pi = _lock_cases(a, b, c, d, eps)
-    regular = ~(near_zero | near_pi)
-    middle = 2.0 * torch.atan2(safe_sqrt(cd2), safe_sqrt(ab2))
-    # atan2(0, 0) has a NaN gradient: feed each discarded half-angle a safe (0, 1) argument.
-    half_sum = torch.atan2(torch.where(near_pi, 0.0, b), torch.where(near_pi, 1.0, a))
-    half_diff = torch.atan2(torch.where(near_zero, 0.0, d), torch.where(near_zero, 1.0, c))
+    conv, sign = convention, _ABCD[convention.name][1]
+    abcd, norms2, near_zero, near_pi = _lock_cases(q, conv, eps)
+    norms = safe_sqrt(norms2)
+    middle = 2.0 * torch.atan2(norms[..., 1], norms[..., 0])
+    # (half sum, half difference) = (atan2(b, a), atan2(d, c)). Near lock one of them is
+    # atan2(0, 0), whose gradient is NaN: feed the unused one a safe (0, 1) argument.
+    unused = torch.stack((near_pi, near_zero), dim=-1)
+    halves = torch.atan2(torch.where(unused, 0.0, abcd[..., 1::2]), torch.where(unused, 1.0, abcd[..., 0::2]))
+    half_sum, half_diff = halves.unbind(-1)
     extrinsic = not conv.intrinsic
-    locked = torch.where(near_zero, 2.0 * half_sum, 2.0 * half_diff * (-1.0 if extrinsic else 1.0))
-    zero = torch.zeros_like(locked)
-    first = torch.where(regular, half_sum - half_diff, locked if extrinsic else zero)
-    third = torch.where(regular, half_sum + half_diff, zero if extrinsic else locked)
+    # SciPy's rule at lock: the third angle is 0 and the first carries the rotation.
+    locked = 2.0 * torch.where(near_zero, half_sum, half_diff * (-1.0 if extrinsic else 1.0))
+    locked_pair = locked.unsqueeze(-1) * constant("lock_first" if extrinsic else "lock_third",
+                                                  [1.0, 0.0] if extrinsic else [0.0, 1.0], q)
+    regular = ~(near_zero | near_pi)
+    # (first, third) in the extrinsic order the method computes: (half_sum -+ half_diff)
+    pair = torch.where(regular.unsqueeze(-1), halves @ constant("sum_diff", [[1.0, 1.0], [-1.0, 1.0]], q), locked_pair)
     if not conv.symmetric:
-        third = third * sign
+        pair = pair * constant(f"tait_bryan_sign{sign}", [1.0, float(sign)], q)
         middle = middle - math.pi / 2.0
-    first = torch.remainder(first + math.pi, 2.0 * math.pi) - math.pi
-    third = torch.remainder(third + math.pi, 2.0 * math.pi) - math.pi
+    first, third = (torch.remainder(pair + math.pi, 2.0 * math.pi) - math.pi).unbind(-1)
     angles = torch.stack((first, middle, third) if extrinsic else (third, middle, first), dim=-1)
-    # a + b + c + d = 0 only for q = 0: no rotation, so NaN rather than a plausible (0, -pi/2, 0).
-    return torch.where((ab2 + cd2 == 0).unsqueeze(-1), torch.nan, angles)
+    # |(a, b)|^2 + |(c, d)|^2 = 0 only for q = 0: no rotation, so NaN, not a plausible (0, -pi/2, 0).
+    return torch.where((norms2.sum(-1) == 0).unsqueeze(-1), torch.nan, angles)
 
 
 def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Optional[float] = None) -> Tensor:
@@ -272,6 +284,5 @@ def euler_gimbal_lock(q: Tensor, convention: str, eps: Optional[float] = None) -
     conv = parse_convention(convention, "euler_gimbal_lock")
     q, _ = prepare(q, "euler_gimbal_lock", "q", (4,))
     eps = gimbal_eps(q.dtype) if eps is None else float(eps)
-    (a, b, c, d), _ = _abcd(q, conv)
-    _, _, near_zero, near_pi = _lock_cases(a, b, c, d, eps)
+    _, _, near_zero, near_pi = _lock_cases(q, conv, eps)
     return near_zero | near_pi
