@@ -106,3 +106,16 @@ def test_float32_and_float64_inputs_are_kept():
     assert tq.quat_to_matrix(q.double()).dtype == torch.float64
     assert tq.random_quat(2).dtype == torch.get_default_dtype()
     assert tq.random_quat(2, dtype=torch.float16).dtype == torch.float16
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_autocast_does_not_lower_the_precision(name):
+    fn, generic, _ = ALL[name]
+    inputs = tuple(x.float().requires_grad_() for x in generic())
+    expected = fn(*inputs)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        out = fn(*inputs)
+        grads = torch.autograd.grad(out.sum(), inputs)
+    assert out.dtype == torch.float32
+    assert torch.allclose(out, expected, atol=1e-6, rtol=0)
+    assert all(torch.isfinite(g).all() for g in grads)

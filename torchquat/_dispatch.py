@@ -62,6 +62,12 @@ def kernel(fn: Callable) -> Callable:
 
     @functools.wraps(fn)
     def dispatch(*tensors, **static):
+        device = tensors[0].device.type
+        if torch.is_autocast_enabled(device):
+            # Autocast would round the kernels' small matmuls to bfloat16/float16; rotations
+            # are computed in the input's precision (float32 at least) and returned in it.
+            with torch.autocast(device, enabled=False):
+                return dispatch(*tensors, **static)
         if (_enabled and not torch.compiler.is_compiling()
                 and not torch._C._are_functorch_transforms_active()):
             return _compiled_for(fn, tuple(sorted(static.items())))(*tensors)

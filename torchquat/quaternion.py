@@ -11,6 +11,7 @@ from typing import Sequence, Union
 import torch
 from torch import Tensor
 
+from ._dispatch import kernel
 from ._math import constant, is_small
 from ._validation import check_broadcast, common_dtype, prepare, restore
 
@@ -49,6 +50,7 @@ def _basis_product(a, b):
 _PRODUCT = _product_table()
 
 
+@kernel
 def hamilton_product(p: Tensor, q: Tensor) -> Tensor:
     """Unchecked Hamilton product of prepared tensors (used internally)."""
     if is_small(p, 4) and is_small(q, 4):
@@ -145,6 +147,12 @@ def standardize_sign(q: Tensor) -> Tensor:
     return torch.where(key < 0, -1.0, 1.0).to(q.dtype).unsqueeze(-1)
 
 
+@kernel
+def standardized(q: Tensor) -> Tensor:
+    """Unchecked ``q * standardize_sign(q)``."""
+    return q * standardize_sign(q)
+
+
 def quat_standardize(q: Tensor) -> Tensor:
     """Pick the representative with ``w >= 0`` (``q`` and ``-q`` are the same rotation).
 
@@ -159,7 +167,7 @@ def quat_standardize(q: Tensor) -> Tensor:
         tensor([1., -0., -0., -0.])
     """
     q, dtype = prepare(q, "quat_standardize", "q", (4,))
-    return restore(q * standardize_sign(q), dtype)
+    return restore(standardized(q), dtype)
 
 
 def quat_rotate(q: Tensor, v: Tensor) -> Tensor:

@@ -17,7 +17,7 @@ from .conventions import gimbal_eps, parse_convention
 from .euler import euler_to_quat_unchecked, quat_to_euler_unchecked
 from .errors import ConventionError, ShapeError
 from .matrix import matrix_to_quat_unchecked, quat_to_matrix_unchecked
-from .quaternion import standardize_sign
+from .quaternion import standardized
 from .rot6d import rot6d_to_matrix_unchecked, rot9d_to_matrix_unchecked
 
 __all__ = ["Representation", "REPRESENTATIONS", "convert", "parse_representation"]
@@ -46,7 +46,7 @@ class Representation(NamedTuple):
 
 
 def _standardized(q: Tensor, _opts: Options) -> Tensor:
-    return q * standardize_sign(q)
+    return standardized(q)
 
 
 def _euler_to_quat(x: Tensor, o: Options) -> Tensor:
