@@ -127,7 +127,7 @@ def axis_angle_to_matrix(v: Tensor) -> Tensor:
         ``(..., 3)`` -> ``(..., 3, 3)``.
 
     Example:
-        >>> axis_angle_to_matrix(torch.tensor([0., 0., torch.pi / 2])).round(decimals=6)
+        >>> axis_angle_to_matrix(torch.tensor([0., 0., torch.pi / 2])).round(decimals=6) + 0.0  # + 0.0 turns -0. into 0.
         tensor([[ 0., -1.,  0.],
                 [ 1.,  0.,  0.],
                 [ 0.,  0.,  1.]])

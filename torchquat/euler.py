@@ -120,7 +120,7 @@ def euler_to_matrix(angles: Tensor, convention: str, degrees: bool = False) -> T
         ``(..., 3)`` -> ``(..., 3, 3)``.
 
     Example:
-        >>> euler_to_matrix(torch.tensor([90., 0., 0.]), "ZYX", degrees=True).round(decimals=6)
+        >>> euler_to_matrix(torch.tensor([90., 0., 0.]), "ZYX", degrees=True).round(decimals=6) + 0.0  # + 0.0 turns -0. into 0.
         tensor([[ 0., -1.,  0.],
                 [ 1.,  0.,  0.],
                 [ 0.,  0.,  1.]])

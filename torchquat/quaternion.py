@@ -189,7 +189,7 @@ def quat_rotate(q: Tensor, v: Tensor) -> Tensor:
 
     Example:
         >>> q = torch.tensor([math.cos(math.pi / 4), 0., 0., math.sin(math.pi / 4)])  # 90 deg about z
-        >>> quat_rotate(q, torch.tensor([1., 0., 0.])).round(decimals=6)
+        >>> quat_rotate(q, torch.tensor([1., 0., 0.])).round(decimals=6) + 0.0  # + 0.0 turns -0. into 0.
         tensor([0., 1., 0.])
     """
     q, dtype = prepare(q, "quat_rotate", "q", (4,))
