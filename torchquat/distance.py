@@ -4,32 +4,35 @@ import torch
 from torch import Tensor
 
 from ._dispatch import kernel
-from ._math import safe_sqrt
+from ._math import constant
 from ._validation import check_broadcast, common_dtype, prepare, restore
-from .quaternion import normalized
+from .quaternion import hamilton_product
 
 __all__ = ["quat_geodesic_distance", "matrix_geodesic_distance"]
 
 
 @kernel
 def quat_geodesic_distance_unchecked(q1: Tensor, q2: Tensor) -> Tensor:
-    q1, q2 = normalized(q1), normalized(q2)
-    q2 = torch.where((q1 * q2).sum(-1, keepdim=True) < 0, -q2, q2)  # q and -q: same rotation
-    diff2 = ((q1 - q2) ** 2).sum(-1)
-    sum2 = ((q1 + q2) ** 2).sum(-1)  # >= 2 after the sign choice: never 0
-    return 4.0 * torch.atan2(safe_sqrt(diff2), torch.sqrt(sum2))
+    # The relative rotation conj(q1) q2 = (w, v) has angle 2 atan2(|v|, |w|): invariant to the
+    # signs and scales of q1 and q2, accurate at 0 and pi, and vector_norm's gradient is 0 (not
+    # NaN) at v = 0, the kink of the distance. w = <q1, q2>.
+    # vec(conj(q1) q2) = vec(conj(q1) (q2 - q1)) because conj(q1) q1 is real: computed from the
+    # difference it is exactly 0 for equal inputs and has no cancellation for close ones.
+    vector = hamilton_product(q1 * constant("conjugate", [1.0, -1.0, -1.0, -1.0], q1), q2 - q1)[..., 1:]
+    sine, cosine = torch.linalg.vector_norm(vector, dim=-1), (q1 * q2).sum(-1).abs()
+    angle = 2.0 * torch.atan2(sine, cosine)
+    return torch.where(sine + cosine == 0, torch.nan, angle)  # a zero quaternion is no rotation
 
 
 def quat_geodesic_distance(q1: Tensor, q2: Tensor) -> Tensor:
     """Angle of the rotation between two quaternions, sign-invariant (``q`` and ``-q`` agree).
 
-    Computed as ``4 atan2(|q1 - q2|, |q1 + q2|)`` after choosing the sign of ``q2`` that makes
-    ``<q1, q2> >= 0``: accurate near 0 and pi, where ``2 acos(|<q1, q2>|)`` loses half its
-    digits and has an infinite gradient. The gradient is finite everywhere (0 at distance 0,
-    the kink of the distance function).
+    Computed as ``2 atan2(|v|, |w|)`` of the relative rotation ``(w, v) = conj(q1) q2``: accurate
+    near 0 and pi, where ``2 acos(|<q1, q2>|)`` loses half its digits and has an infinite
+    gradient. The gradient is finite everywhere (0 at distance 0, the kink of the distance).
 
     Args:
-        q1: quaternions ``(w, x, y, z)`` (normalised inside).
+        q1: quaternions ``(w, x, y, z)``, any non-zero norm.
         q2: quaternions; batch dims broadcast with ``q1``'s.
 
     Returns:
@@ -51,15 +54,19 @@ def quat_geodesic_distance(q1: Tensor, q2: Tensor) -> Tensor:
 
 @kernel
 def matrix_geodesic_distance_unchecked(R1: Tensor, R2: Tensor) -> Tensor:
-    M = R1.mT @ R2
-    trace = M.diagonal(dim1=-2, dim2=-1).sum(-1)
-    vee = torch.stack((M[..., 2, 1] - M[..., 1, 2], M[..., 0, 2] - M[..., 2, 0], M[..., 1, 0] - M[..., 0, 1]), -1)
-    # tan(angle) = |vee(M - M^T)| / (tr M - 1): both sides keep full precision at 0 and pi.
-    return torch.atan2(safe_sqrt((vee * vee).sum(-1)), trace - 1.0)
+    # For M = R1^T R2: tr M = sum(R1 * R2), and vee(M - M^T) = (M32 - M23, M13 - M31, M21 - M12)
+    # is a sum over rows k of products of R1's and R2's entries. No matrix product is needed.
+    # The cross products are spelled out as two separate products so that R1 == R2 gives
+    # exactly 0 (a fused multiply-add would leave rounding noise, and with it a gradient of
+    # norm 1 in a random direction at zero distance).
+    vee = (R1.roll(1, -1) * R2.roll(-1, -1) - R1.roll(-1, -1) * R2.roll(1, -1)).sum(-2)
+    trace = (R1 * R2).sum((-2, -1))
+    # tan(angle) = |vee| / (tr M - 1): both keep full precision at 0 and pi.
+    return torch.atan2(torch.linalg.vector_norm(vee, dim=-1), trace - 1.0)
 
 
 def matrix_geodesic_distance(R1: Tensor, R2: Tensor) -> Tensor:
-    """Angle of the rotation ``R1^T R2``, from ``atan2(|vee(M - M^T)|, tr M - 1)``.
+    """Angle of the rotation ``R1^T R2``, from ``atan2(|vee(M - M^T)|, tr M - 1)`` with ``M = R1^T R2``.
 
     Unlike ``acos((tr M - 1) / 2)`` this is accurate near 0 and pi and its gradient is finite
     there (0 at distance 0).
