@@ -13,12 +13,12 @@ import numpy as np
 import torch
 
 from .checks import Report, check_matrices, normalize_quaternions
-from .numtext import format_floats, format_integers, format_nanoseconds, format_rows
+from .numtext import Floats, Integers, Nanoseconds, format_floats, format_integers, format_nanoseconds, format_table
 from .poses import PoseFileError, Poses
 from .textparse import decimal_seconds_to_ns, iter_line_chunks, parse_table
 
 __all__ = ["read_tum", "read_kitti", "read_euroc", "TumWriter", "KittiWriter", "EurocWriter",
-           "time_fields", "EUROC_HEADER"]
+           "time_fields", "time_column", "EUROC_HEADER"]
 
 EUROC_HEADER = (b"#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],"
                 b"q_RS_w [],q_RS_x [],q_RS_y [],q_RS_z []\n")
@@ -92,14 +92,31 @@ def _integer_ns(path, table) -> np.ndarray:
         raise
 
 
-def time_fields(poses: Poses, report: Report, row: int) -> np.ndarray:
-    """Byte fields for the time column: exact ns as ``%d.%09d`` when known, else float seconds."""
+def time_column(poses: Poses, report: Report, row: int):
+    """The time column for :func:`~torchquat.io.numtext.format_table`.
+
+    Exact ns as ``%d.%09d`` when known; whole seconds (KITTI's row index) as integers, which
+    read back to the same float and are much cheaper to write; else float seconds.
+    """
     if poses.timestamps_ns is not None:
-        return format_nanoseconds(poses.timestamps_ns)
+        return Nanoseconds(poses.timestamps_ns)
     if poses.timestamps is None:
         report.note("input has no timestamps: the row index is written as the time")
-        return format_floats(np.arange(row, row + len(poses), dtype=np.float64)[:, None])
-    return format_floats(np.asarray(poses.timestamps, dtype=np.float64)[:, None])
+        return Integers(np.arange(row, row + len(poses), dtype=np.int64))
+    seconds = np.asarray(poses.timestamps, dtype=np.float64)
+    if len(seconds) and np.all(np.abs(seconds) < 2.0 ** 53) and np.array_equal(seconds, np.floor(seconds)):
+        return Integers(seconds.astype(np.int64))  # np.floor keeps -0.0 and nan/inf fail the test above
+    return Floats(seconds[:, None])
+
+
+def time_fields(poses: Poses, report: Report, row: int) -> np.ndarray:
+    """Byte fields for the time column (numpy formatter): see :func:`time_column`."""
+    column = time_column(poses, report, row)
+    if isinstance(column, Nanoseconds):
+        return format_nanoseconds(column.values)
+    if isinstance(column, Integers):
+        return format_integers(column.values)
+    return format_floats(column.values)
 
 
 def positions_of(poses: Poses, dtype, report: Report) -> np.ndarray:
@@ -131,7 +148,7 @@ class _TextWriter:
             self.started = True
         if len(poses):
             poses = poses.to(self.representation)
-            self.stream.write(format_rows(self.fields(poses), self.separator))
+            self.stream.write(format_table(self.fields(poses), self.separator))
             self.rows += len(poses)
 
     def close(self) -> None:
@@ -152,7 +169,7 @@ class TumWriter(_TextWriter):
 
     def fields(self, poses):
         values = np.concatenate([positions_of(poses, self.dtype, self.report), self.rotations(poses)], axis=1)
-        return [time_fields(poses, self.report, self.rows), format_floats(values)]
+        return [time_column(poses, self.report, self.rows), Floats(values)]
 
 
 class KittiWriter(_TextWriter):
@@ -165,7 +182,7 @@ class KittiWriter(_TextWriter):
             self.report.note("KITTI files hold no timestamps: the input's timestamps are not written")
         pose = np.concatenate([self.rotations(poses), positions_of(poses, self.dtype, self.report)[:, :, None]],
                               axis=2)
-        return [format_floats(pose.reshape(len(poses), 12))]
+        return [Floats(pose.reshape(len(poses), 12))]
 
 
 class EurocWriter(_TextWriter):
@@ -187,4 +204,4 @@ class EurocWriter(_TextWriter):
             self.report.note("input has no timestamps: the row index is written as the time (ns)")
             ns = np.arange(self.rows, self.rows + len(poses), dtype=np.int64)
         values = np.concatenate([positions_of(poses, self.dtype, self.report), self.rotations(poses)], axis=1)
-        return [format_integers(ns), format_floats(values)]
+        return [Integers(ns), Floats(values)]

@@ -14,11 +14,12 @@ Layout follows ``repr``: positional for ``1e-5 <= |x| < 1e16``, scientific (``1e
 integers without ``.0``.
 """
 
-from typing import List, Sequence
+from typing import List, NamedTuple, Sequence
 
 import numpy as np
 
-__all__ = ["format_rows", "format_floats", "format_nanoseconds", "format_integers"]
+__all__ = ["format_rows", "format_floats", "format_nanoseconds", "format_integers", "format_table", "Floats",
+           "Integers", "Nanoseconds"]
 
 _MARGIN = 1e-6  # in units of the last of P digits; the arithmetic error is about 1e-7 of a unit
 _SPLIT = 134217729.0  # 2**27 + 1, Dekker's splitter for float64
@@ -252,7 +253,7 @@ def format_integers(values: np.ndarray) -> np.ndarray:
         values: ``(n,)`` integer array.
 
     Returns:
-        ``(n, 1, 20)`` uint8 array, NUL padded like :func:`format_floats`.
+        ``(n, 1, w)`` uint8 array (``w <= 20``), NUL padded like :func:`format_floats`.
 
     Example:
         >>> m = format_integers(np.array([0, -42, 1403715524907143168]))
@@ -261,13 +262,15 @@ def format_integers(values: np.ndarray) -> np.ndarray:
     """
     values = np.asarray(values, dtype=np.int64)
     magnitude = np.abs(values).astype(np.uint64)
-    places = (10 ** np.arange(18, -1, -1, dtype=np.int64)).astype(np.uint64)
-    digits = ((magnitude[:, None] // places) % np.uint64(10)).astype(np.uint8)
-    first = np.where(digits.any(axis=1), np.argmax(digits != 0, axis=1), 18)
-    out = np.zeros((values.size, 20), dtype=np.uint8)
-    out[:, 0] = np.where(values < 0, ord("-"), 0)
-    out[:, 1:] = np.where(np.arange(19)[None, :] >= first[:, None], digits + _ZERO, 0)
-    return out.reshape(values.size, 1, 20)
+    largest = int(magnitude.max(initial=0))
+    width = max(1, min(19, len(str(largest))))  # only as many digit columns as the largest value needs
+    places = (10 ** np.arange(width - 1, -1, -1, dtype=np.int64)).astype(np.uint64)
+    digits = ((magnitude[None, :] // places[:, None]) % np.uint64(10)).astype(np.uint8)  # (width, n)
+    first = np.where(digits.any(axis=0), np.argmax(digits != 0, axis=0), width - 1)
+    out = np.zeros((width + 1, values.size), dtype=np.uint8)
+    out[0] = np.where(values < 0, ord("-"), 0)
+    out[1:] = np.where(np.arange(width)[:, None] >= first[None, :], digits + _ZERO, 0)
+    return np.ascontiguousarray(out.T).reshape(values.size, 1, width + 1)
 
 
 def format_rows(fields: Sequence[np.ndarray], separator: str = " ") -> bytes:
@@ -297,3 +300,50 @@ def format_rows(fields: Sequence[np.ndarray], separator: str = " ") -> bytes:
     last = table.shape[1] - 1
     table[:, last] = ord("\n")
     return table[table != 0].tobytes()
+
+
+class Floats(NamedTuple):
+    """Columns of floats for :func:`format_table`: an ``(n, k)`` float64 or float32 array."""
+    values: np.ndarray
+
+
+class Integers(NamedTuple):
+    """A column of integers for :func:`format_table`: an ``(n,)`` int64 array."""
+    values: np.ndarray
+
+
+class Nanoseconds(NamedTuple):
+    """A column of int64 nanoseconds written as exact decimal seconds (see :func:`format_nanoseconds`)."""
+    values: np.ndarray
+
+
+def format_table(columns: Sequence, separator: str = " ") -> bytes:
+    """Format columns into text lines, with polars when available (see :mod:`torchquat.io.fastpath`).
+
+    Args:
+        columns: :class:`Floats`, :class:`Integers` and :class:`Nanoseconds`, in column order.
+        separator: the byte put between fields; each row ends with a newline.
+
+    Returns:
+        The encoded lines; every value reads back to the same float (or integer).
+
+    Example:
+        >>> text = format_table([Integers(np.array([7])), Floats(np.array([[0.5, -2.0]]))])
+        >>> [float(v) for v in text.split()]
+        [7.0, 0.5, -2.0]
+    """
+    from .fastpath import write_table
+    text = write_table(columns, separator)
+    if text is not None:
+        return text
+    fields = []
+    for column in columns:
+        if isinstance(column, Floats):
+            fields.append(format_floats(column.values))
+        elif isinstance(column, Integers):
+            fields.append(format_integers(column.values))
+        elif isinstance(column, Nanoseconds):
+            fields.append(format_nanoseconds(column.values))
+        else:
+            raise TypeError(f"format_table: unknown column {type(column).__name__}")
+    return format_rows(fields, separator)

@@ -21,8 +21,8 @@ import torch
 
 from ..registry import REPRESENTATIONS
 from .checks import Report, check_matrices, normalize_quaternions
-from .formats import positions_of, time_fields
-from .numtext import format_floats, format_rows
+from .formats import positions_of, time_column
+from .numtext import Floats, format_table
 from .poses import PoseFileError, Poses
 from .textparse import decimal_seconds_to_ns, iter_line_chunks, parse_table, read_header
 
@@ -175,11 +175,11 @@ class CsvWriter:
         if not len(poses):
             return
         poses = poses.to(self.representation, degrees=self.degrees)
-        fields = [time_fields(poses, self.report, self.rows)] if self.columns[0] else []
+        fields = [time_column(poses, self.report, self.rows)] if self.columns[0] else []
         values = [positions_of(poses, self.dtype, self.report)] if self.columns[1] else []
         values.append(poses.rotations.numpy().reshape(len(poses), -1).astype(self.dtype, copy=False))
-        fields.append(format_floats(np.concatenate(values, axis=1)))
-        self.stream.write(format_rows(fields, ","))
+        fields.append(Floats(np.concatenate(values, axis=1)))
+        self.stream.write(format_table(fields, ","))
         self.rows += len(poses)
 
     def close(self) -> None:

@@ -1,0 +1,119 @@
+"""Smoke tests of ``torchquat bench``: structure of the table and the JSON, and the peer sanity
+check. No timing is asserted (the numbers depend on the machine and its load)."""
+
+import argparse
+import importlib.util
+import json
+
+import pytest
+import torch
+
+from torchquat import bench
+from torchquat.bench import ops as bench_ops
+from torchquat.bench import timing
+
+OPS = ["quat_to_matrix", "quat_to_euler_ZYX", "quat_multiply"]
+ARGS = ["--n", "1", "10", "--ops", *OPS, "--min-run-time", "0.001", "--allocator", "none"]
+
+
+def _installed(peer):
+    module = dict((name, module) for name, module, *_ in bench_ops.PEER_SPECS)[peer]
+    return importlib.util.find_spec(module) is not None
+
+
+INSTALLED = [p for p in bench_ops.PEER_NAMES if _installed(p)]
+
+
+def test_add_arguments_defaults():
+    parser = bench.add_arguments(argparse.ArgumentParser())
+    args = parser.parse_args([])
+    assert args.n == [1, 1000, 1_000_000]
+    assert args.threads == 1 and args.dtype == "float32" and args.backward is True
+    assert args.ops is None and args.json is None
+    args = parser.parse_args(["--no-backward", "--ops", "quat_to_matrix", "--peers", "roma"])
+    assert args.backward is False and args.ops == ["quat_to_matrix"] and args.peers == ["roma"]
+
+
+def test_bench_table_and_json(tmp_path, capsys):
+    path = tmp_path / "bench.json"
+    assert bench.main(ARGS + ["--json", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "### N = 1\n" in out and "### N = 10\n" in out
+    assert "| op | pass | torchquat |" in out
+    assert "allocator: glibc defaults" in out
+    for label in ("quat -> matrix", "quat -> Euler ZYX", "quat product"):
+        assert f"| {label} | fwd |" in out and f"| {label} | fwd+bwd |" in out
+    for peer in INSTALLED:
+        assert f" {peer} |" in out.splitlines()[out.splitlines().index("### N = 1") + 2]
+
+    data = json.loads(path.read_text())
+    assert set(data) == {"meta", "results", "summary", "agreement", "legend"}
+    assert data["meta"]["ns"] == [1, 10] and data["meta"]["threads"] == 1
+    results = data["results"]
+    mine = [r for r in results if r["impl"] == "torchquat"]
+    assert {(r["op"], r["n"], r["pass"]) for r in mine} == {
+        (op, n, p) for op in OPS for n in (1, 10) for p in ("fwd", "fwd+bwd")}
+    for r in mine:
+        assert r["error"] is None and r["median_s"] > 0 and r["runs"] >= 3
+    floors = [r for r in results if r["impl"] == "floor"]
+    assert len(floors) == len(OPS) * 2 and all(r["median_s"] > 0 for r in floors)
+    assert all(r["pass"] == "fwd" for r in results if r["impl"] == "scipy")
+    for s in data["summary"]:
+        assert (s["floor_s"] is not None) == (s["pass"] == "fwd")
+    for op in OPS:
+        assert data["legend"][op]["torchquat"].startswith("torchquat.")
+
+
+@pytest.mark.parametrize("peer", INSTALLED)
+def test_installed_peers_agree(peer):
+    """Every installed peer's call computes the same rotation as torchquat (the bench's check)."""
+    [loaded] = bench_ops.load_peers([peer])
+    assert loaded.error is None, loaded.error
+    inputs = bench_ops.make_check_inputs(torch.float32)
+    assert loaded.impls
+    for name, impl in loaded.impls.items():
+        ok, err = bench_ops.check_agreement(bench_ops.OPS_BY_NAME[name], impl, inputs, 1e-3)
+        assert ok, f"{peer} {name}: max abs error {err}"
+
+
+def test_disagreeing_peer_is_marked_and_not_counted(tmp_path, capsys, monkeypatch):
+    """A peer that computes a different rotation gets "≠" and is never the fastest peer."""
+    wrong = bench_ops.Impl(lambda q: torch.zeros(q.shape[:-1] + (3, 3)), lambda d: (d["q"],), "zeros")
+    spec = ("fake", "torch", lambda mod: {"quat_to_matrix": wrong}, True, None)
+    monkeypatch.setattr(bench_ops, "PEER_SPECS", [spec])
+    monkeypatch.setattr(bench_ops, "PEER_NAMES", ["fake"])
+    path = tmp_path / "b.json"
+    assert bench.main(["--n", "1", "--ops", "quat_to_matrix", "--no-backward", "--min-run-time", "0.001",
+                       "--allocator", "none", "--json", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "| quat -> matrix | fwd |" in out and "≠ " in out
+    data = json.loads(path.read_text())
+    assert data["agreement"][0]["agrees"] is False
+    assert data["summary"][0]["fastest_peer"] is None and data["summary"][0]["speedup"] is None
+
+
+def test_missing_peer_is_skipped_with_install_hint(capsys, monkeypatch):
+    spec = ("ghost", "no_such_module_torchquat_test", lambda mod: {}, True, None)
+    monkeypatch.setattr(bench_ops, "PEER_SPECS", [spec])
+    monkeypatch.setattr(bench_ops, "PEER_NAMES", ["ghost"])
+    assert bench.main(["--n", "1", "--ops", "quat_to_matrix", "--no-backward", "--min-run-time", "0.001",
+                       "--allocator", "none"]) == 0
+    out = capsys.readouterr().out
+    assert "Skipped ghost" in out and 'pip install "torchquat[bench]"' in out
+
+
+def test_bad_arguments_exit_2(capsys):
+    assert bench.main(["--ops", "no_such_op", "--allocator", "none"]) == 2
+    assert bench.main(["--peers", "no_such_peer", "--allocator", "none"]) == 2
+    assert "unknown" in capsys.readouterr().err
+
+
+def test_floor_kernel_shapes():
+    f = timing.floor_fn(5, 4, (3, 3), torch.float32)  # inputs smaller than the output: a copy
+    assert f().shape == (5, 3, 3)
+    f = timing.floor_fn(5, 18, (), torch.float32)  # two matrices in, one angle out: a sum of 18 planes
+    assert f().shape == (5,)
+
+
+def test_no_reexec_inside_a_test_runner():
+    assert timing.relaunch_argv() is None

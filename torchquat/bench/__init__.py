@@ -1,0 +1,248 @@
+"""``torchquat bench``: time torchquat against every installed peer, on the same rotations.
+
+Peers: RoMa, kornia, pytorch-kinematics, PyPose (torch) and SciPy (NumPy, forward only, its own
+column), installed by ``pip install "torchquat[bench]"``. One process, ``torch.utils.benchmark``
+medians, 1 thread by default, float32 by default, N = 1, 1,000 and 1,000,000, forward and
+forward+backward (``torch.autograd.grad`` with a preallocated output gradient). Every peer
+cell is first checked to compute the same rotation as torchquat; one that does not is shown
+with "≠" and is never counted as the fastest peer.
+
+Usage::
+
+    torchquat bench [--n 1 1000 1000000] [--ops ...] [--peers ...] [--json FILE]
+    python -m torchquat.bench ...
+"""
+
+import argparse
+import os
+import platform
+import sys
+import time
+from typing import List, Optional
+
+import torch
+
+from . import ops as _ops
+from . import report as _report
+from . import timing as _timing
+
+__all__ = ["add_arguments", "run", "main"]
+
+_DTYPES = {"float32": torch.float32, "float64": torch.float64}
+INSTALL_HINT = 'pip install "torchquat[bench]"'
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Add the bench options to ``parser`` (the ``torchquat bench`` subcommand uses this)."""
+    parser.add_argument("--n", type=int, nargs="+", default=[1, 1000, 1_000_000], metavar="N",
+                        help="batch sizes (default: 1 1000 1000000)")
+    parser.add_argument("--ops", nargs="+", default=None, metavar="OP",
+                        help="operations to time (default: all): " + " ".join(op.name for op in _ops.OPS))
+    parser.add_argument("--peers", nargs="+", default=None, metavar="PEER",
+                        help="peers to time, if installed (default: all): " + " ".join(_ops.PEER_NAMES)
+                        + "; 'none' for torchquat alone")
+    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default: 1)")
+    parser.add_argument("--dtype", choices=sorted(_DTYPES), default="float32", help="default: float32")
+    parser.add_argument("--backward", action=argparse.BooleanOptionalAction, default=True,
+                        help="also time forward+backward (default: on)")
+    parser.add_argument("--min-run-time", type=float, default=0.2, metavar="SECONDS",
+                        help="blocked_autorange min_run_time per cell (default: 0.2); at least 3 "
+                        "measurements are taken whatever it is")
+    parser.add_argument("--json", metavar="FILE", default=None, help="also write every number to FILE")
+    parser.add_argument("--allocator", choices=["auto", "reexec", "mallopt", "none"], default="auto",
+                        help="how to keep glibc from page-faulting fresh outputs at large N: re-exec "
+                        "with GLIBC_TUNABLES set (auto, when run from the command line), glibc "
+                        "mallopt in-process (auto otherwise), or leave it (none)")
+    parser.add_argument("--compiled", action=argparse.BooleanOptionalAction, default=False,
+                        help="also time torchquat with use_compiled_kernels(True) (torch.compile, "
+                        "inductor; needs a C++ compiler; compile time excluded) in its own column")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the random rotations")
+    parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                        help="progress lines on stderr (default: when stderr is a terminal)")
+    return parser
+
+
+def _callable(impl: _ops.Impl, inputs, backward: bool, seed: int):
+    args = impl.prep(inputs)
+    if not backward:
+        return lambda: impl.fn(*args)
+    leaves = tuple(a.detach().clone().requires_grad_() if isinstance(a, torch.Tensor) and a.is_floating_point()
+                   else a for a in args)
+    diff = tuple(a for a in leaves if isinstance(a, torch.Tensor) and a.requires_grad)
+    out = impl.fn(*leaves)
+    outs = tuple(out) if isinstance(out, (tuple, list)) else (out,)
+    g = torch.Generator().manual_seed(seed)
+    grads = tuple(torch.randn(tuple(o.shape), generator=g, dtype=o.dtype) for o in outs)
+    del out, outs
+
+    def step():
+        out = impl.fn(*leaves)
+        outs = tuple(out) if isinstance(out, (tuple, list)) else (out,)
+        return torch.autograd.grad(outs, diff, grads, allow_unused=True)
+
+    return step
+
+
+def _progress(text: str, enabled: bool) -> None:
+    if enabled:
+        print(text, file=sys.stderr, flush=True)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the benchmark described by ``args`` (from :func:`add_arguments`); return the exit status."""
+    ns: List[int] = list(getattr(args, "n", None) or [1, 1000, 1_000_000])
+    op_names = getattr(args, "ops", None) or [op.name for op in _ops.OPS]
+    unknown = [name for name in op_names if name not in _ops.OPS_BY_NAME]
+    if unknown:
+        print(f"torchquat bench: unknown op(s) {' '.join(unknown)}; choose from "
+              + " ".join(op.name for op in _ops.OPS), file=sys.stderr)
+        return 2
+    peer_names = getattr(args, "peers", None)
+    peer_names = _ops.PEER_NAMES if peer_names is None else [p for p in peer_names if p != "none"]
+    bad = [p for p in peer_names if p not in _ops.PEER_NAMES]
+    if bad:
+        print(f"torchquat bench: unknown peer(s) {' '.join(bad)}; choose from "
+              + " ".join(_ops.PEER_NAMES), file=sys.stderr)
+        return 2
+    if any(n < 1 for n in ns):
+        print("torchquat bench: --n values must be >= 1", file=sys.stderr)
+        return 2
+    dtype = _DTYPES[getattr(args, "dtype", "float32")]
+    threads = int(getattr(args, "threads", 1))
+    min_run_time = float(getattr(args, "min_run_time", 0.2))
+    passes = ["fwd", "fwd+bwd"] if getattr(args, "backward", True) else ["fwd"]
+    seed = int(getattr(args, "seed", 0))
+    compiled = bool(getattr(args, "compiled", False)) and _ops.has_compiled_kernels()
+    verbose = getattr(args, "progress", None)
+    verbose = sys.stderr.isatty() if verbose is None else bool(verbose)
+
+    allocator = _timing.steady_allocator(getattr(args, "allocator", "auto"))  # may re-exec
+    torch.set_num_threads(threads)
+
+    peers = _ops.load_peers(peer_names)
+    active = [p for p in peers if p.error is None]
+    torch_peers = [p.name for p in active if p.torch_peer]
+    columns = ([_report.COMPILED] if compiled else []) + [p.name for p in active]
+    selected = [_ops.OPS_BY_NAME[name] for name in op_names]
+
+    # Sanity check, once per (op, peer), on generic rotations away from gimbal lock.
+    check_inputs = _ops.make_check_inputs(dtype)
+    tol = 1e-3 if dtype == torch.float32 else 1e-6
+    agreement, agrees = [], {}
+    for op in selected:
+        for peer in active:
+            impl = peer.impls.get(op.name)
+            if impl is None:
+                continue
+            try:
+                ok, err = _ops.check_agreement(op, impl, check_inputs, tol)
+                error = None
+            except Exception as exc:
+                ok, err, error = False, None, f"{type(exc).__name__}: {exc}"
+            agrees[(op.name, peer.name)] = ok
+            agreement.append({"op": op.name, "impl": peer.name, "agrees": ok, "max_abs_err": err,
+                              "tolerance": tol, "error": error})
+
+    results = []
+    total = len(ns) * len(selected)
+    done = 0
+    started = time.perf_counter()
+    for n in ns:
+        inputs = _ops.make_inputs(n, dtype, seed)
+        for op in selected:
+            done += 1
+            _progress(f"[{done}/{total}] N={n} {op.name}", verbose)
+            tq_impl = _ops.torchquat_impl(op)
+            impls = [(_report.TORCHQUAT, tq_impl, None)]
+            if compiled:
+                impls.append((_report.COMPILED, _ops.torchquat_impl(op, compiled=True), None))
+            impls += [(p.name, p.impls[op.name], agrees.get((op.name, p.name))) for p in active
+                      if op.name in p.impls]
+            for pss in passes:
+                for name, impl, ok in impls:
+                    if pss == "fwd+bwd" and not impl.backward:
+                        continue
+                    rec = {"op": op.name, "n": n, "pass": pss, "impl": name, "call": impl.call,
+                           "agrees": ok, "median_s": None, "iqr_s": None, "runs": 0, "error": None}
+                    fn = None
+                    try:
+                        fn = _callable(impl, inputs, pss == "fwd+bwd", seed)
+                        if name == _report.COMPILED:
+                            fn(), fn()  # compile (excluded from the timing)
+                        t = _timing.measure(fn, min_run_time, threads)
+                        rec.update(median_s=t.median, iqr_s=t.iqr, runs=t.runs, calls=t.calls)
+                    except Exception as exc:
+                        rec["error"] = f"{type(exc).__name__}: {exc}"[:300]
+                    results.append(rec)
+                    del fn
+            out = op.tq_fn(*(inputs[k] for k in op.args))
+            in_width = sum(inputs[k][0].numel() for k in op.args)
+            t = _timing.measure(_timing.floor_fn(n, in_width, tuple(out.shape[1:]), dtype), min_run_time, threads)
+            results.append({"op": op.name, "n": n, "pass": "fwd", "impl": _report.FLOOR, "agrees": None,
+                            "call": "floor", "median_s": t.median, "iqr_s": t.iqr, "runs": t.runs, "error": None})
+            del out
+        del inputs
+    elapsed = time.perf_counter() - started
+
+    import torchquat
+    header = [
+        "## torchquat bench",
+        "",
+        f"torchquat {torchquat.__version__}, torch {torch.__version__}, {str(dtype).replace('torch.', '')}, {threads} thread(s), "
+        f"{platform.machine()} {platform.processor() or ''} ({os.cpu_count()} CPUs), Python {platform.python_version()}",
+        f"Medians of torch.utils.benchmark blocked_autorange(min_run_time={min_run_time}) (at least 3 "
+        "measurements); fwd+bwd = the call plus torch.autograd.grad with a preallocated output gradient.",
+        allocator,
+        "Peers: " + (", ".join(f"{p.name} {p.version} (import {p.import_s:.2f} s)" for p in active) or "none"),
+    ]
+    for p in peers:
+        if p.error is not None:
+            header.append(f"Skipped {p.name}: {p.error.splitlines()[0]} -- install the peers with: {INSTALL_HINT}")
+    if compiled:
+        header.append(f"{_report.COMPILED}: torchquat with use_compiled_kernels(True); compile time is "
+                      "excluded (warm-up calls); not counted in speed-up, which compares eager torchquat.")
+    header.append("speed-up = fastest agreeing torch peer / torchquat (SciPy, on NumPy, is not counted); "
+                  "≠ = the peer's output differs from torchquat's beyond "
+                  f"{tol:g} (compared as matrices on generic rotations): not counted; err = it raised.")
+    footer = ["Floor: " + _timing.FLOOR_DEFINITION + ".", "", "Calls timed:"]
+    legend = {}
+    for op in selected:
+        calls = {_report.TORCHQUAT: "torchquat." + op.tq_call}
+        if compiled:
+            calls[_report.COMPILED] = _ops.torchquat_impl(op, compiled=True).call
+        for p in active:
+            if op.name in p.impls:
+                impl = p.impls[op.name]
+                calls[p.name] = impl.call + (f" [{impl.note}]" if impl.note else "")
+        legend[op.name] = calls
+        footer.append(f"- {op.label}: " + "; ".join(f"{k}: `{v}`" for k, v in calls.items()))
+    failures = [a for a in agreement if not a["agrees"]]
+    for a in failures:
+        footer.append(f"- ≠ {a['impl']} on {a['op']}: max abs error {a['max_abs_err']}"
+                      + (f" ({a['error']})" if a["error"] else ""))
+    errors = {}
+    for r in results:
+        if r.get("error"):
+            errors.setdefault((r["impl"], r["op"], r["pass"], r["error"]), []).append(f"{r['n']:,}")
+    for (impl_name, op_name, pss, error), sizes in errors.items():
+        footer.append(f"- err {impl_name} on {op_name} {pss} (N = {', '.join(sizes)}): {error}")
+    footer.append(f"Total bench time {elapsed:.0f} s.")
+
+    labels = {op.name: op.label for op in selected}
+    print(_report.markdown(results, labels, ns, columns, torch_peers, header, footer), end="")
+    json_path = getattr(args, "json", None)
+    if json_path:
+        meta = {"torchquat": torchquat.__version__, "torch": torch.__version__, "dtype": str(dtype),
+                "threads": threads, "ns": ns, "compiled": compiled, "min_run_time": min_run_time, "allocator": allocator,
+                "floor_definition": _timing.FLOOR_DEFINITION, "machine": platform.platform(),
+                "cpus": os.cpu_count(), "python": platform.python_version(), "elapsed_s": elapsed,
+                "peers": {p.name: {"version": p.version, "import_s": p.import_s, "error": p.error} for p in peers}}
+        _report.write_json(json_path, meta, results, torch_peers, legend, agreement)
+    return 0
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m torchquat.bench",
+                                     description="Time torchquat against the installed peer libraries.")
+    add_arguments(parser)
+    return run(parser.parse_args(argv))
