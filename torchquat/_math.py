@@ -30,8 +30,12 @@ over memory. Both give the same results to rounding; the tests run both."""
 
 
 def is_small(x: Tensor, row_numel: int) -> bool:
-    """Whether ``x`` (rows of ``row_numel`` numbers) is a small batch (a shape test, not data)."""
-    return x.numel() <= SMALL_BATCH_ROWS * row_numel
+    """Whether ``x`` (rows of ``row_numel`` numbers) is a small batch (a shape test, not data).
+
+    Inside a ``torch.compile`` trace the answer is no: inductor fuses elementwise code into one
+    loop, and a matmul would split it.
+    """
+    return x.numel() <= SMALL_BATCH_ROWS * row_numel and not torch.compiler.is_compiling()
 
 
 _CONSTANTS = {}
@@ -50,3 +54,16 @@ def constant(name: str, values, like: Tensor) -> Tensor:
     if table is None:
         table = _CONSTANTS[key] = torch.tensor(values, dtype=like.dtype, device=like.device)
     return table
+
+
+def contract(x: Tensor, name: str, values) -> Tensor:
+    """``x @ table`` for a small constant ``table`` (a vector or a matrix of a few columns).
+
+    Eager: one matmul, the fewest dispatches. Under ``torch.compile``: the same sum written as a
+    broadcast product and a reduction over a handful of terms, which inductor fuses with its
+    neighbours instead of calling BLAS.
+    """
+    table = constant(name, values, x)
+    if torch.compiler.is_compiling():
+        return (x * table).sum(-1) if table.dim() == 1 else (x.unsqueeze(-1) * table).sum(-2)
+    return x @ table

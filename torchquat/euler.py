@@ -14,7 +14,7 @@ import torch
 from torch import Tensor
 
 from ._dispatch import kernel
-from ._math import constant, safe_sqrt
+from ._math import constant, contract, safe_sqrt
 from ._validation import prepare, restore
 from .conventions import EULER_CONVENTIONS, EulerConvention, gimbal_eps, parse_convention
 from .matrix import matrix_to_quat_unchecked, quat_to_matrix_unchecked
@@ -56,17 +56,13 @@ _SIGN_TABLES: Dict[str, Tuple[Tuple[int, ...], ...]] = {
 }
 
 
-def _table(convention: EulerConvention, like: Tensor) -> Tensor:
-    return constant("euler_signs_" + convention.name, _SIGN_TABLES[convention.name], like)
-
-
 @kernel
 def euler_to_quat_unchecked(angles: Tensor, convention: EulerConvention) -> Tensor:
     half = angles * 0.5
     cs = torch.stack((torch.cos(half), torch.sin(half)), dim=-1)  # (..., 3, 2)
     c1, c2, c3 = cs.unbind(-2)
     products = (c1[..., :, None, None] * c2[..., None, :, None] * c3[..., None, None, :]).flatten(-3)
-    q = products @ _table(convention, angles)
+    q = contract(products, "euler_signs_" + convention.name, _SIGN_TABLES[convention.name])
     return q * standardize_sign(q)
 
 
@@ -161,7 +157,7 @@ def _lock_cases(q: Tensor, conv: EulerConvention, eps: float):
     ``eps`` of 0 iff ``|(c, d)| <= tan(eps / 2) |(a, b)|`` and within ``eps`` of pi iff
     ``|(a, b)| <= tan(eps / 2) |(c, d)|``. Neither side subtracts nearly equal numbers.
     """
-    abcd = q @ constant("abcd_" + conv.name, _ABCD[conv.name][0], q)
+    abcd = contract(q, "abcd_" + conv.name, _ABCD[conv.name][0])
     norms2 = (abcd * abcd).unflatten(-1, (2, 2)).sum(-1)
     ab2, cd2 = norms2.unbind(-1)
     t2 = math.tan(eps / 2.0) ** 2
@@ -186,7 +182,7 @@ def quat_to_euler_unchecked(q: Tensor, convention: EulerConvention, eps: float) 
                                                   [1.0, 0.0] if extrinsic else [0.0, 1.0], q)
     regular = ~(near_zero | near_pi)
     # (first, third) in the extrinsic order the method computes: (half_sum -+ half_diff)
-    pair = torch.where(regular.unsqueeze(-1), halves @ constant("sum_diff", [[1.0, 1.0], [-1.0, 1.0]], q), locked_pair)
+    pair = torch.where(regular.unsqueeze(-1), contract(halves, "sum_diff", [[1.0, 1.0], [-1.0, 1.0]]), locked_pair)
     if not conv.symmetric:
         pair = pair * constant(f"tait_bryan_sign{sign}", [1.0, float(sign)], q)
         middle = middle - math.pi / 2.0

@@ -4,7 +4,7 @@ import torch
 from torch import Tensor
 
 from ._dispatch import kernel
-from ._math import constant, is_small
+from ._math import constant, contract, is_small
 from ._validation import prepare, restore
 from .quaternion import standardize_sign
 
@@ -36,7 +36,7 @@ def quat_to_matrix_unchecked(q: Tensor) -> Tensor:
     if is_small(q, 4):
         # Few rotations: cost is per-operation dispatch, so use 4 ops: the outer product, one
         # small matmul against the constant table, a division (NOTES: 5-10 us an op at N = 1).
-        h = (q.unsqueeze(-1) * q.unsqueeze(-2)).flatten(-2) @ constant("homogeneous", _HOMOGENEOUS, q)
+        h = contract((q.unsqueeze(-1) * q.unsqueeze(-2)).flatten(-2), "homogeneous", _HOMOGENEOUS)
         return (h[..., :9] / h[..., 9:]).unflatten(-1, (3, 3))
     # Many: the skinny matmul is slower than elementwise passes (NOTES), so spell it out.
     w, x, y, z = q.unbind(-1)
@@ -107,10 +107,15 @@ def matrix_to_quat_unchecked(R: Tensor) -> Tensor:
     ``argmax`` and ``gather``, so there is no data-dependent branch and no device sync; all ten
     distinct entries of ``4 q q^T`` come from one small matmul.
     """
-    vals = R.flatten(-2) @ constant("shepperd", _SHEPPERD, R) + constant("shepperd_offset", _SHEPPERD_OFFSET, R)
+    vals = contract(R.flatten(-2), "shepperd", _SHEPPERD) + constant("shepperd_offset", _SHEPPERD_OFFSET, R)
     best = vals[..., :4].argmax(-1)
-    rows = constant("shepperd_rows", _SHEPPERD_ROWS, best)
-    row = vals.gather(-1, rows[best])
+    if torch.compiler.is_compiling():
+        # a select chain over the four candidate rows fuses; a gather from a computed buffer does not
+        rows = [torch.stack([vals[..., i] for i in r], dim=-1) for r in _SHEPPERD_ROWS]
+        best = best.unsqueeze(-1)
+        row = torch.where(best == 0, rows[0], torch.where(best == 1, rows[1], torch.where(best == 2, rows[2], rows[3])))
+    else:
+        row = vals.gather(-1, constant("shepperd_rows", _SHEPPERD_ROWS, best)[best])
     # Normalise and make it canonical (w >= 0; see standardize_sign) with one multiplication.
     scale = torch.rsqrt((row * row).sum(-1, keepdim=True)) * standardize_sign(row)
     return row * scale

@@ -12,7 +12,7 @@ import torch
 from torch import Tensor
 
 from ._dispatch import kernel
-from ._math import constant, is_small
+from ._math import constant, contract, is_small
 from ._validation import check_broadcast, common_dtype, prepare, restore
 
 __all__ = [
@@ -54,7 +54,7 @@ _PRODUCT = _product_table()
 def hamilton_product(p: Tensor, q: Tensor) -> Tensor:
     """Unchecked Hamilton product of prepared tensors (used internally)."""
     if is_small(p, 4) and is_small(q, 4):
-        return (p.unsqueeze(-1) * q.unsqueeze(-2)).flatten(-2) @ constant("product", _PRODUCT, p)
+        return contract((p.unsqueeze(-1) * q.unsqueeze(-2)).flatten(-2), "product", _PRODUCT)
     pw, px, py, pz = p.unbind(-1)
     qw, qx, qy, qz = q.unbind(-1)
     return torch.stack((
@@ -143,7 +143,7 @@ def standardize_sign(q: Tensor) -> Tensor:
     """
     # sign(8 sign(w) + 4 sign(x) + 2 sign(y) + sign(z)) is the sign of the first non-zero
     # component (each weight exceeds the sum of the later ones): 3 ops instead of nested wheres.
-    key = torch.sign(q) @ constant("lexicographic", [8.0, 4.0, 2.0, 1.0], q)
+    key = contract(torch.sign(q), "lexicographic", [8.0, 4.0, 2.0, 1.0])
     return torch.where(key < 0, -1.0, 1.0).to(q.dtype).unsqueeze(-1)
 
 
