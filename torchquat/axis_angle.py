@@ -23,10 +23,12 @@ def axis_angle_to_quat_unchecked(v: Tensor) -> Tensor:
     small = theta2 < small_angle_threshold(v.dtype)
     theta = torch.sqrt(torch.where(small, 1.0, theta2))  # safe stand-in where the series is used
     half = 0.5 * theta
-    cos_half = torch.where(small, 1.0 - theta2 / 8.0 + theta2 * theta2 / 384.0, torch.cos(half))
-    sinc_half = torch.where(small, 0.5 - theta2 / 48.0 + theta2 * theta2 / 3840.0, torch.sin(half) / theta)
-    q = torch.cat((cos_half, sinc_half * v), dim=-1)
-    return q * standardize_sign(q)
+    # Below theta^2 = sqrt(eps) the next series terms (theta^4/384, theta^4/3840) are under eps.
+    cos_half = torch.where(small, 1.0 - 0.125 * theta2, torch.cos(half))
+    sinc_half = torch.where(small, 0.5 - theta2 / 48.0, torch.sin(half) / theta)
+    # w >= 0: cos(theta / 2) of a float angle is never exactly 0, so its sign alone decides.
+    sign = torch.where(cos_half < 0, -1.0, 1.0)
+    return torch.cat((cos_half * sign, v * (sinc_half * sign)), dim=-1)
 
 
 def axis_angle_to_quat(v: Tensor) -> Tensor:
