@@ -18,7 +18,6 @@ from ._math import constant, contract, safe_sqrt
 from ._validation import prepare, restore
 from .conventions import EULER_CONVENTIONS, EulerConvention, gimbal_eps, parse_convention
 from .matrix import matrix_to_quat_unchecked, quat_to_matrix_unchecked
-from .quaternion import standardize_sign
 
 __all__ = ["euler_to_quat", "quat_to_euler", "euler_to_matrix", "matrix_to_euler", "euler_gimbal_lock"]
 
@@ -63,7 +62,9 @@ def euler_to_quat_unchecked(angles: Tensor, convention: EulerConvention) -> Tens
     c1, c2, c3 = cs.unbind(-2)
     products = (c1[..., :, None, None] * c2[..., None, :, None] * c3[..., None, None, :]).flatten(-3)
     q = contract(products, "euler_signs_" + convention.name, _SIGN_TABLES[convention.name])
-    return q * standardize_sign(q)
+    # w >= 0 from w's sign alone (cheaper than standardize_sign; w == 0 exactly would need
+    # a product of float cosines and sines to cancel exactly)
+    return q * torch.where(q[..., :1] < 0, -1.0, 1.0)
 
 
 def _to_radians(angles: Tensor, degrees: bool) -> Tensor:
