@@ -53,3 +53,16 @@ def test_switch_and_environment_variable():
     assert tq.compiled_kernels_enabled()
     tq.use_compiled_kernels(False)
     assert not tq.compiled_kernels_enabled()
+
+
+def test_every_convention_and_dtype_gets_its_own_graph_without_hitting_the_recompile_limit(compiled, monkeypatch):
+    import torchquat._dispatch as dispatch
+    monkeypatch.setattr(dispatch, "_backend", "eager")
+    monkeypatch.setattr(dispatch, "_compiled", {})
+    q = tq.random_quat(50, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    for convention in sorted(tq.EULER_CONVENTIONS):
+        for dtype in (torch.float32, torch.float64):
+            for n in (1, 50):
+                out = tq.quat_to_euler(q[:n].to(dtype), convention)
+                assert torch.isfinite(out).all()
+    assert len(dispatch._compiled) == 24

@@ -11,6 +11,7 @@ kernel runs and is traced as usual.
 
 import functools
 import os
+import types
 from typing import Callable, Dict, Tuple
 
 import torch
@@ -19,6 +20,7 @@ __all__ = ["use_compiled_kernels", "compiled_kernels_enabled", "kernel"]
 
 _enabled = os.environ.get("TORCHQUAT_COMPILE", "0").lower() in ("1", "true", "yes", "on")
 _compiled: Dict[Tuple, Callable] = {}
+_backend = "inductor"  # tests swap in "eager" to check tracing and caching without compiling C++
 
 
 def use_compiled_kernels(enabled: bool = True) -> None:
@@ -44,12 +46,28 @@ def compiled_kernels_enabled() -> bool:
     return _enabled
 
 
+def _fresh_copy(fn: Callable, tag: int) -> Callable:
+    """``fn`` with a code object of its own: dynamo keeps compiled graphs (and its limit of 8
+    recompiles) per code object, so each kernel and static combination (24 Euler conventions,
+    say) gets its own."""
+    code = fn.__code__.replace(co_name=f"{fn.__name__}_{tag}")
+    copy = types.FunctionType(code, fn.__globals__, code.co_name, fn.__defaults__, fn.__closure__)
+    copy.__kwdefaults__ = fn.__kwdefaults__
+    return copy
+
+
 def _compiled_for(fn: Callable, static: Tuple) -> Callable:
     key = (fn, static)
     compiled = _compiled.get(key)
     if compiled is None:
-        bound = functools.partial(fn, **dict(static)) if static else fn
-        compiled = _compiled[key] = torch.compile(bound, dynamic=True, fullgraph=True)
+        options = dict(static)
+
+        def bound(*tensors):
+            return fn(*tensors, **options)
+
+        # not functools.partial: torch.compile wraps those in one shared frame
+        compiled = _compiled[key] = torch.compile(_fresh_copy(bound, len(_compiled)), dynamic=True, fullgraph=True,
+                                                     backend=_backend)
     return compiled
 
 
