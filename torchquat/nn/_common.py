@@ -39,13 +39,3 @@ def check_tensor(module: str, name: str, x, trailing: Sequence[int]) -> None:
     n = len(trailing)
     if x.dim() < n or tuple(x.shape[x.dim() - n:]) != tuple(trailing):
         raise ShapeError(f"{module}: expected {name} of shape {shape_text(trailing)}, got {tuple(x.shape)}")
-
-
-def autocast_off(x) -> torch.autocast:
-    """A context that turns autocast off on ``x``'s device.
-
-    The rotation maps compute in float32 themselves; under autocast their matmuls (``R1^T R2``,
-    the SVD projection's ``U V^T``) would be rounded to the autocast dtype, and the projection's
-    backward would mix dtypes.
-    """
-    return torch.autocast(x.device.type if isinstance(x, Tensor) else "cpu", enabled=False)

@@ -8,7 +8,6 @@ from torch import Tensor, nn
 from ..errors import ShapeError
 from ..quaternion import quat_normalize
 from ..registry import convert, parse_representation
-from ._common import autocast_off
 
 __all__ = ["RotationHead"]
 
@@ -59,7 +58,7 @@ class RotationHead(nn.Module):
     Shape:
         ``(..., in_features)`` -> ``(..., 3, 3)`` for ``output="matrix"``, ``(..., 4)`` for
         ``output="quat"``. Under autocast the linear layer runs in the autocast dtype and the
-        map to a rotation in float32 (autocast off); the result has the linear output's dtype.
+        map to a rotation in float32 (the core turns autocast off); the result has the linear output's dtype.
 
     Example:
         >>> head = RotationHead(16, "rot6d")
@@ -102,8 +101,7 @@ class RotationHead(nn.Module):
             got = tuple(features.shape) if isinstance(features, Tensor) else type(features).__name__
             raise ShapeError(f"RotationHead: expected features of shape (..., {self.in_features}), got {got}")
         y = self.linear(features)
-        with autocast_off(y):  # the map computes in float32 itself (see autocast_off)
-            return self._to_rotation(y)
+        return self._to_rotation(y)
 
     def _to_rotation(self, y: Tensor) -> Tensor:
         if self.representation == "quat" and self.output == "quat":

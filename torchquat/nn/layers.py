@@ -6,7 +6,6 @@ from torch import Tensor, nn
 
 from ..quaternion import quat_rotate
 from ..registry import convert, parse_representation
-from ._common import autocast_off
 
 __all__ = ["Convert", "RotateVectors"]
 
@@ -59,8 +58,7 @@ class Convert(nn.Module):
 
     def forward(self, x: Tensor) -> Tensor:
         """Convert ``x`` from ``src`` to ``dst``."""
-        with autocast_off(x):  # computed in float32 for half inputs; no bfloat16 matmuls
-            return convert(x, self.src, self.dst, convention=self.convention, degrees=self.degrees)
+        return convert(x, self.src, self.dst, convention=self.convention, degrees=self.degrees)
 
     def extra_repr(self) -> str:
         text = f"src={self.src!r}, dst={self.dst!r}"

@@ -1,7 +1,7 @@
 """Rotation losses with ``reduction='none' | 'mean' | 'sum'``, as in ``torch.nn``.
 
 Each loss is a thin ``forward`` over a core function, computed in float32 for half-precision
-inputs (with autocast off, so no matmul inside is rounded to bfloat16) and returned in the
+inputs (the core kernels turn autocast off, so no matmul inside is rounded to bfloat16) and returned in the
 input dtype. Gradients are finite everywhere, including at zero
 loss and at rotations 180 degrees apart.
 """
@@ -11,7 +11,7 @@ from torch import Tensor, nn
 from .._validation import check_broadcast, common_dtype, prepare, restore
 from ..distance import matrix_geodesic_distance_unchecked, quat_geodesic_distance_unchecked
 from ..quaternion import normalized
-from ._common import autocast_off, check_reduction, check_tensor, reduce
+from ._common import check_reduction, check_tensor, reduce
 
 __all__ = ["GeodesicLoss", "QuatDistanceLoss", "ChordalLoss"]
 
@@ -60,8 +60,7 @@ class GeodesicLoss(nn.Module):
 
     def forward(self, input: Tensor, target: Tensor) -> Tensor:
         """Angles between ``input`` and ``target``, reduced."""
-        with autocast_off(input):
-            return self._loss(input, target)
+        return self._loss(input, target)
 
     def _loss(self, input: Tensor, target: Tensor) -> Tensor:
         if self.representation == "matrix":
@@ -101,8 +100,7 @@ class QuatDistanceLoss(nn.Module):
 
     def forward(self, input: Tensor, target: Tensor) -> Tensor:
         """``1 - |<q1, q2>|`` of ``input`` and ``target``, reduced."""
-        with autocast_off(input):
-            return self._loss(input, target)
+        return self._loss(input, target)
 
     def _loss(self, input: Tensor, target: Tensor) -> Tensor:
         a, b, dtype = _prepare_pair("QuatDistanceLoss", input, target, (4,))
@@ -138,8 +136,7 @@ class ChordalLoss(nn.Module):
 
     def forward(self, input: Tensor, target: Tensor) -> Tensor:
         """``||input - target||_F^2``, reduced."""
-        with autocast_off(input):
-            return self._loss(input, target)
+        return self._loss(input, target)
 
     def _loss(self, input: Tensor, target: Tensor) -> Tensor:
         a, b, dtype = _prepare_pair("ChordalLoss", input, target, (3, 3))
