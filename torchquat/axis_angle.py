@@ -53,17 +53,17 @@ def axis_angle_to_quat(v: Tensor) -> Tensor:
 
 @kernel
 def quat_to_axis_angle_unchecked(q: Tensor) -> Tensor:
-    hemisphere = standardize_sign(q)  # shortest arc: use the w >= 0 copy (unique at w == 0 too)
-    w = q[..., :1] * hemisphere
-    u = q[..., 1:] * hemisphere
-    n2, w2 = (u * u).sum(-1, keepdim=True), w * w
-    small = n2 < small_angle_threshold(q.dtype) * w2  # r^2 = n^2 / w^2 = tan^2(angle / 4) is small
+    # shortest arc: use the w >= 0 copy (at w == 0 both copies are half turns, either is right)
+    hemisphere = torch.where(q[..., :1] < 0, -1.0, 1.0)
+    w, u = q[..., :1] * hemisphere, q[..., 1:] * hemisphere
+    n2 = (u * u).sum(-1, keepdim=True)
+    # angle / |u| = 2 atan2(|u|, w) / |u| = (2 / w)(1 - r^2/3 + ...) with r = |u| / w: below
+    # r^2 = eps the limit 2 / w is exact to rounding. Above it the closed form is accurate, and
+    # its gradient's cancellation costs at most eps / r relative, on a term of size r.
+    small = n2 <= torch.finfo(q.dtype).eps * (w * w)
     n = torch.sqrt(torch.where(small, 1.0, n2))
-    w_safe = torch.where(small, w, 1.0)  # w = 0 at 180 degrees: keep inf out of the unused series
-    r2 = n2 / (w_safe * w_safe)
-    # angle / |u| = 2 atan(r) / (r w): its series in r^2 is (2 / w)(1 - r^2/3 + r^4/5).
-    series = (2.0 - r2 * (2.0 / 3.0) + r2 * r2 * 0.4) / w_safe
-    scale = torch.where(small, series, 2.0 * torch.atan2(n, w) / n)
+    w_safe = torch.where(small, w, 1.0)  # w = 0 (a half turn) only reaches the closed form
+    scale = torch.where(small, 2.0 / w_safe, 2.0 * torch.atan2(n, w) / n)
     return u * scale
 
 

@@ -54,12 +54,12 @@ def quat_geodesic_distance(q1: Tensor, q2: Tensor) -> Tensor:
 
 @kernel
 def matrix_geodesic_distance_unchecked(R1: Tensor, R2: Tensor) -> Tensor:
-    # For M = R1^T R2: tr M = sum(R1 * R2), and vee(M - M^T) = (M32 - M23, M13 - M31, M21 - M12)
-    # is a sum over rows k of products of R1's and R2's entries. No matrix product is needed.
-    # The cross products are spelled out as two separate products so that R1 == R2 gives
-    # exactly 0 (a fused multiply-add would leave rounding noise, and with it a gradient of
-    # norm 1 in a random direction at zero distance).
-    vee = (R1.roll(1, -1) * R2.roll(-1, -1) - R1.roll(-1, -1) * R2.roll(1, -1)).sum(-2)
+    # For M = R1^T R2, tr M = sum(R1 * R2): no matrix product is needed.
+    # vee(M - M^T) = sum_k (R1 column k) x (R2 column k), and R1's own columns contribute
+    # nothing, so cross with R2 - R1: exactly 0 for equal inputs (no rounding noise, hence a zero
+    # gradient at zero distance) and no cancellation for close ones.
+    R1, R2 = torch.broadcast_tensors(R1, R2)
+    vee = torch.linalg.cross(R1, R2 - R1, dim=-2).sum(-1)
     trace = (R1 * R2).sum((-2, -1))
     # tan(angle) = |vee| / (tr M - 1): both keep full precision at 0 and pi.
     return torch.atan2(torch.linalg.vector_norm(vee, dim=-1), trace - 1.0)
