@@ -1,6 +1,5 @@
 """Streaming keeps peak memory flat in the file size (measured in a child process)."""
 
-import resource
 import subprocess
 import sys
 

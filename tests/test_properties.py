@@ -3,7 +3,6 @@ near-singular rotations, in every representation and convention."""
 
 import math
 
-import pytest
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st

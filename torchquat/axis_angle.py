@@ -12,7 +12,6 @@ from ._dispatch import kernel
 from ._math import small_angle_threshold
 from ._validation import prepare, restore
 from .matrix import matrix_to_quat_unchecked
-from .quaternion import standardize_sign
 
 __all__ = ["axis_angle_to_quat", "quat_to_axis_angle", "axis_angle_to_matrix", "matrix_to_axis_angle"]
 

@@ -12,7 +12,7 @@ import torch
 from torch import Tensor
 
 from ._dispatch import kernel
-from ._math import constant, contract, is_small
+from ._math import contract, is_small
 from ._validation import check_broadcast, common_dtype, prepare, restore
 
 __all__ = [
