@@ -43,7 +43,7 @@ def restore(y: Tensor, dtype: torch.dtype) -> Tensor:
     return y if y.dtype == dtype else y.to(dtype)
 
 
-def common_dtype(fn: str, a: Tensor, b: Tensor) -> Tuple[Tensor, Tensor]:
+def common_dtype(a: Tensor, b: Tensor) -> Tuple[Tensor, Tensor]:
     """Promote two prepared tensors to one dtype (float32 with float64 gives float64)."""
     if a.dtype == b.dtype:
         return a, b
@@ -61,3 +61,14 @@ def check_broadcast(fn: str, names: Sequence[str], tensors: Sequence[Tensor],
         if len(sizes) > 1:
             got = " and ".join(str(b) for b in batches)
             raise ShapeError(f"{fn}: expected {' and '.join(names)} with broadcastable batch shapes, got {got}")
+
+
+def prepare_pair(fn: str, names: Sequence[str], a, b, trailing_a: Sequence[int],
+                 trailing_b: Sequence[int]) -> Tuple[Tensor, Tensor, torch.dtype]:
+    """:func:`prepare` both arguments of a two-argument function, check that their batch shapes
+    broadcast, and promote them to one dtype; returns them and the dtype to return in."""
+    a, dtype = prepare(a, fn, names[0], trailing_a)
+    b, _ = prepare(b, fn, names[1], trailing_b)
+    check_broadcast(fn, names, (a, b), (len(trailing_a), len(trailing_b)))
+    a, b = common_dtype(a, b)
+    return a, b, dtype

@@ -5,8 +5,8 @@ from torch import Tensor
 
 from ._dispatch import kernel
 from ._math import constant
-from ._validation import check_broadcast, common_dtype, prepare, restore
-from .quaternion import hamilton_product
+from ._validation import prepare_pair, restore
+from .quaternion import CONJUGATE_SIGNS, hamilton_product
 
 __all__ = ["quat_geodesic_distance", "matrix_geodesic_distance"]
 
@@ -18,7 +18,7 @@ def quat_geodesic_distance_unchecked(q1: Tensor, q2: Tensor) -> Tensor:
     # NaN) at v = 0, the kink of the distance. w = <q1, q2>.
     # vec(conj(q1) q2) = vec(conj(q1) (q2 - q1)) because conj(q1) q1 is real: computed from the
     # difference it is exactly 0 for equal inputs and has no cancellation for close ones.
-    vector = hamilton_product(q1 * constant("conjugate", [1.0, -1.0, -1.0, -1.0], q1), q2 - q1)[..., 1:]
+    vector = hamilton_product(q1 * constant("conjugate", CONJUGATE_SIGNS, q1), q2 - q1)[..., 1:]
     sine, cosine = torch.linalg.vector_norm(vector, dim=-1), (q1 * q2).sum(-1).abs()
     angle = 2.0 * torch.atan2(sine, cosine)
     return torch.where(sine + cosine == 0, torch.nan, angle)  # a zero quaternion is no rotation
@@ -45,10 +45,7 @@ def quat_geodesic_distance(q1: Tensor, q2: Tensor) -> Tensor:
         >>> quat_geodesic_distance(torch.tensor([1., 0., 0., 0.]), torch.tensor([0., 0., 0., -1.]))
         tensor(3.1416)
     """
-    q1, dtype = prepare(q1, "quat_geodesic_distance", "q1", (4,))
-    q2, _ = prepare(q2, "quat_geodesic_distance", "q2", (4,))
-    check_broadcast("quat_geodesic_distance", ("q1", "q2"), (q1, q2), (1, 1))
-    q1, q2 = common_dtype("quat_geodesic_distance", q1, q2)
+    q1, q2, dtype = prepare_pair("quat_geodesic_distance", ("q1", "q2"), q1, q2, (4,), (4,))
     return restore(quat_geodesic_distance_unchecked(q1, q2), dtype)
 
 
@@ -86,8 +83,5 @@ def matrix_geodesic_distance(R1: Tensor, R2: Tensor) -> Tensor:
         >>> matrix_geodesic_distance(torch.eye(3), Rz)
         tensor(1.5708)
     """
-    R1, dtype = prepare(R1, "matrix_geodesic_distance", "R1", (3, 3))
-    R2, _ = prepare(R2, "matrix_geodesic_distance", "R2", (3, 3))
-    check_broadcast("matrix_geodesic_distance", ("R1", "R2"), (R1, R2), (2, 2))
-    R1, R2 = common_dtype("matrix_geodesic_distance", R1, R2)
+    R1, R2, dtype = prepare_pair("matrix_geodesic_distance", ("R1", "R2"), R1, R2, (3, 3), (3, 3))
     return restore(matrix_geodesic_distance_unchecked(R1, R2), dtype)

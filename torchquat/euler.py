@@ -18,18 +18,11 @@ from ._math import constant, contract, safe_sqrt
 from ._validation import prepare, restore
 from .conventions import EULER_CONVENTIONS, EulerConvention, gimbal_eps, parse_convention
 from .matrix import matrix_to_quat_unchecked, quat_to_matrix_unchecked
+from .quaternion import basis_product
 
 __all__ = ["euler_to_quat", "quat_to_euler", "euler_to_matrix", "matrix_to_euler", "euler_gimbal_lock"]
 
 _UNIT = ((1, 0, 0, 0), (0, 1, 0, 0), (0, 0, 1, 0), (0, 0, 0, 1))  # 1, i, j, k
-
-
-def _basis_product(p, q):
-    """Hamilton product of two signed basis quaternions given as 4-tuples (exact integers)."""
-    pw, px, py, pz = p
-    qw, qx, qy, qz = q
-    return (pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw)
 
 
 def _sign_table(convention: EulerConvention) -> Tuple[Tuple[int, ...], ...]:
@@ -46,7 +39,7 @@ def _sign_table(convention: EulerConvention) -> Tuple[Tuple[int, ...], ...]:
         factors = [_UNIT[axis + 1] if bit else _UNIT[0] for axis, bit in zip(convention.axes, bits)]
         if not convention.intrinsic:
             factors.reverse()
-        rows.append(_basis_product(_basis_product(factors[0], factors[1]), factors[2]))
+        rows.append(basis_product(basis_product(factors[0], factors[1]), factors[2]))
     return tuple(rows)
 
 

@@ -12,8 +12,8 @@ import torch
 from torch import Tensor
 
 from ._dispatch import kernel
-from ._math import contract, is_small
-from ._validation import check_broadcast, common_dtype, prepare, restore
+from ._math import constant, contract, is_small
+from ._validation import prepare, prepare_pair, restore
 
 __all__ = [
     "quat_multiply", "quat_conjugate", "quat_inverse", "quat_normalize", "quat_standardize",
@@ -22,25 +22,18 @@ __all__ = [
 ]
 
 
-def _prepare_pair(fn, a, b, names, trailing=(4, 4)):
-    a, dtype = prepare(a, fn, names[0], (trailing[0],))
-    b, _ = prepare(b, fn, names[1], (trailing[1],))
-    check_broadcast(fn, names, (a, b), (1, 1))
-    a, b = common_dtype(fn, a, b)
-    return a, b, dtype
-
-
 def _product_table():
     """16 x 4 table: ``(p q^T).flatten() @ T`` is the Hamilton product ``p q``."""
     basis = ((1, 0, 0, 0), (0, 1, 0, 0), (0, 0, 1, 0), (0, 0, 0, 1))
     table = []
     for i in range(4):
         for j in range(4):
-            table.append([float(c) for c in _basis_product(basis[i], basis[j])])
+            table.append([float(c) for c in basis_product(basis[i], basis[j])])
     return table
 
 
-def _basis_product(a, b):
+def basis_product(a, b):
+    """Hamilton product of two quaternions given as 4-tuples of Python numbers (exact for integers)."""
     aw, ax, ay, az = a
     bw, bx, by, bz = b
     return (aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
@@ -48,6 +41,7 @@ def _basis_product(a, b):
 
 
 _PRODUCT = _product_table()
+CONJUGATE_SIGNS = [1.0, -1.0, -1.0, -1.0]
 
 
 @kernel
@@ -83,7 +77,7 @@ def quat_multiply(p: Tensor, q: Tensor) -> Tensor:
         >>> quat_multiply(i, j)  # ij = k
         tensor([0., 0., 0., 1.])
     """
-    p, q, dtype = _prepare_pair("quat_multiply", p, q, ("p", "q"))
+    p, q, dtype = prepare_pair("quat_multiply", ("p", "q"), p, q, (4,), (4,))
     return restore(hamilton_product(p, q), dtype)
 
 
@@ -98,7 +92,7 @@ def quat_conjugate(q: Tensor) -> Tensor:
         tensor([ 1., -2., -3., -4.])
     """
     q, dtype = prepare(q, "quat_conjugate", "q", (4,))
-    return restore(q * q.new_tensor([1.0, -1.0, -1.0, -1.0]), dtype)
+    return restore(q * constant("conjugate", CONJUGATE_SIGNS, q), dtype)
 
 
 def quat_inverse(q: Tensor) -> Tensor:
@@ -112,7 +106,7 @@ def quat_inverse(q: Tensor) -> Tensor:
         tensor([ 0.0000, -0.5000, -0.0000, -0.0000])
     """
     q, dtype = prepare(q, "quat_inverse", "q", (4,))
-    inv = q * q.new_tensor([1.0, -1.0, -1.0, -1.0]) / (q * q).sum(-1, keepdim=True)
+    inv = q * constant("conjugate", CONJUGATE_SIGNS, q) / (q * q).sum(-1, keepdim=True)
     return restore(inv, dtype)
 
 
@@ -192,10 +186,7 @@ def quat_rotate(q: Tensor, v: Tensor) -> Tensor:
         >>> quat_rotate(q, torch.tensor([1., 0., 0.])).round(decimals=6) + 0.0  # + 0.0 turns -0. into 0.
         tensor([0., 1., 0.])
     """
-    q, dtype = prepare(q, "quat_rotate", "q", (4,))
-    v, _ = prepare(v, "quat_rotate", "v", (3,))
-    check_broadcast("quat_rotate", ("q", "v"), (q, v), (1, 1))
-    q, v = common_dtype("quat_rotate", q, v)
+    q, v, dtype = prepare_pair("quat_rotate", ("q", "v"), q, v, (4,), (3,))
     w, u = q[..., :1], q[..., 1:]
     u, v = torch.broadcast_tensors(u, v)  # linalg.cross wants equal ndim; these are views
     t = torch.linalg.cross(u, v, dim=-1) * (2.0 / (q * q).sum(-1, keepdim=True))
@@ -225,17 +216,17 @@ def quat_slerp(q0: Tensor, q1: Tensor, t: Union[float, Tensor]) -> Tensor:
         >>> quat_slerp(q0, q1, 0.5)  # 90 deg about z
         tensor([0.7071, 0.0000, 0.0000, 0.7071])
     """
-    q0, q1, dtype = _prepare_pair("quat_slerp", q0, q1, ("q0", "q1"))
+    q0, q1, dtype = prepare_pair("quat_slerp", ("q0", "q1"), q0, q1, (4,), (4,))
     t = torch.as_tensor(t, dtype=q0.dtype, device=q0.device).unsqueeze(-1)
     q1 = torch.where((q0 * q1).sum(-1, keepdim=True) < 0, -q1, q1)
     diff2 = ((q0 - q1) ** 2).sum(-1, keepdim=True)
     summ2 = ((q0 + q1) ** 2).sum(-1, keepdim=True)
     small = diff2 < torch.finfo(q0.dtype).eps  # |q0 - q1| < sqrt(eps): angle below ~sqrt(eps)
-    half_angle = 2.0 * torch.atan2(torch.sqrt(torch.where(small, 1.0, diff2)), torch.sqrt(summ2))
-    half_angle = torch.where(small, 1.0, half_angle)  # safe stand-in, discarded below
-    sin_angle = torch.sin(half_angle)
-    w0 = torch.where(small, 1.0 - t, torch.sin((1.0 - t) * half_angle) / sin_angle)
-    w1 = torch.where(small, t, torch.sin(t * half_angle) / sin_angle)
+    angle = 2.0 * torch.atan2(torch.sqrt(torch.where(small, 1.0, diff2)), torch.sqrt(summ2))
+    angle = torch.where(small, 1.0, angle)  # safe stand-in, discarded below
+    sin_angle = torch.sin(angle)
+    w0 = torch.where(small, 1.0 - t, torch.sin((1.0 - t) * angle) / sin_angle)
+    w1 = torch.where(small, t, torch.sin(t * angle) / sin_angle)
     return restore(w0 * q0 + w1 * q1, dtype)
 
 
@@ -331,7 +322,7 @@ def quat_from_jpl(q: Tensor) -> Tensor:
         tensor([ 4., -1., -2., -3.])
     """
     q, dtype = prepare(q, "quat_from_jpl", "q", (4,))
-    return restore(q.roll(1, dims=-1) * q.new_tensor([1.0, -1.0, -1.0, -1.0]), dtype)
+    return restore(q.roll(1, dims=-1) * constant("conjugate", CONJUGATE_SIGNS, q), dtype)
 
 
 def quat_to_jpl(q: Tensor) -> Tensor:
@@ -346,4 +337,4 @@ def quat_to_jpl(q: Tensor) -> Tensor:
         tensor([1., 2., 3., 4.])
     """
     q, dtype = prepare(q, "quat_to_jpl", "q", (4,))
-    return restore(q.roll(-1, dims=-1) * q.new_tensor([-1.0, -1.0, -1.0, 1.0]), dtype)
+    return restore(q.roll(-1, dims=-1) * constant("jpl_signs", [-1.0, -1.0, -1.0, 1.0], q), dtype)

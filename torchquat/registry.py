@@ -18,7 +18,7 @@ from .euler import euler_to_quat_unchecked, quat_to_euler_unchecked
 from .errors import ConventionError, ShapeError
 from .matrix import matrix_to_quat_unchecked, quat_to_matrix_unchecked
 from .quaternion import standardized
-from .rot6d import rot6d_to_matrix_unchecked, rot9d_to_matrix_unchecked
+from .rot6d import matrix_to_rot6d_unchecked, rot6d_to_matrix_unchecked, rot9d_to_matrix_unchecked
 
 __all__ = ["Representation", "REPRESENTATIONS", "convert", "parse_representation"]
 
@@ -75,7 +75,7 @@ REPRESENTATIONS: Dict[str, Representation] = {r.name: r for r in (
     Representation("axis_angle", (3,), "quat", lambda x, o: axis_angle_to_quat_unchecked(x),
                    lambda q, o: quat_to_axis_angle_unchecked(q), "rotation vector, angle in [0, pi]"),
     Representation("rot6d", (6,), "matrix", lambda x, o: rot6d_to_matrix_unchecked(x),
-                   lambda R, o: R[..., :, :2].mT.flatten(-2), "first two columns of R (Zhou et al. 2019)"),
+                   lambda R, o: matrix_to_rot6d_unchecked(R), "first two columns of R (Zhou et al. 2019)"),
     Representation("rot9d", (9,), "matrix", lambda x, o: rot9d_to_matrix_unchecked(x.unflatten(-1, (3, 3))),
                    lambda R, o: R.flatten(-2), "any 3x3 matrix row-major, projected by SVD (Levinson et al. 2020)"),
 )}

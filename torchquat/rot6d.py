@@ -53,6 +53,10 @@ def rot6d_to_matrix(x: Tensor) -> Tensor:
     return restore(rot6d_to_matrix_unchecked(x), dtype)
 
 
+def matrix_to_rot6d_unchecked(R: Tensor) -> Tensor:
+    return torch.cat((R[..., :, 0], R[..., :, 1]), dim=-1)
+
+
 def matrix_to_rot6d(R: Tensor) -> Tensor:
     """The 6D representation: the first two columns of R, ``cat(R[..., :, 0], R[..., :, 1])``.
 
@@ -64,7 +68,7 @@ def matrix_to_rot6d(R: Tensor) -> Tensor:
         tensor([1., 0., 0., 0., 1., 0.])
     """
     R, dtype = prepare(R, "matrix_to_rot6d", "R", (3, 3))
-    return restore(torch.cat((R[..., :, 0], R[..., :, 1]), dim=-1), dtype)
+    return restore(matrix_to_rot6d_unchecked(R), dtype)
 
 
 class _SpecialProcrustes(torch.autograd.Function):

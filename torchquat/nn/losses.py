@@ -8,7 +8,7 @@ loss and at rotations 180 degrees apart.
 
 from torch import Tensor, nn
 
-from .._validation import check_broadcast, common_dtype, prepare, restore
+from .._validation import prepare_pair, restore
 from ..distance import matrix_geodesic_distance_unchecked, quat_geodesic_distance_unchecked
 from ..quaternion import normalized
 from ._common import check_reduction, check_tensor, reduce
@@ -19,11 +19,7 @@ __all__ = ["GeodesicLoss", "QuatDistanceLoss", "ChordalLoss"]
 def _prepare_pair(module: str, input: Tensor, target: Tensor, trailing):
     check_tensor(module, "input", input, trailing)
     check_tensor(module, "target", target, trailing)
-    a, dtype = prepare(input, module, "input", trailing)
-    b, _ = prepare(target, module, "target", trailing)
-    check_broadcast(module, ("input", "target"), (a, b), (len(trailing), len(trailing)))
-    a, b = common_dtype(module, a, b)
-    return a, b, dtype
+    return prepare_pair(module, ("input", "target"), input, target, trailing, trailing)
 
 
 class GeodesicLoss(nn.Module):
