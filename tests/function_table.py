@@ -96,3 +96,11 @@ BINARY = {
 
 ALL = {**{k: (lambda *xs, f=f: f(*xs), lambda g=g: (g(),), lambda s=s: (s(),)) for k, (f, g, s) in UNARY.items()},
        **BINARY}
+
+
+def same_output(name, a, b, atol):
+    """Equal to ``atol``; Euler angles modulo 2 pi (a half turn may come out as pi or -pi)."""
+    difference = a - b
+    if "to_euler" in name:
+        difference = torch.remainder(difference + torch.pi, 2 * torch.pi) - torch.pi
+    return bool((difference.abs() <= atol).all())

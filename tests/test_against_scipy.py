@@ -100,8 +100,9 @@ def test_to_euler_matches_scipy(convention, source):
     conditioned = distance_to_lock > 1e-3
     diff = wrapped(ours - theirs).abs().amax(-1)
     assert diff[conditioned].max() <= TOL
-    # ... and at lock both put the whole rotation in the first angle, with the third 0.
-    assert (ours[locked, 2] == 0).all()
+    # ... and at lock both put the whole rotation in the first angle, with the third 0 (a matrix
+    # is tested on its own entries: rows exactly eps from lock may round the other way).
+    assert (ours[tq.euler_gimbal_lock(q if source == "quat" else R, convention), 2] == 0).all()
     assert (theirs[locked, 2].abs() <= 1e-12).all()
 
 

@@ -6,9 +6,11 @@ import torch
 
 import torchquat as tq
 import torchquat._math as tqmath
-from function_table import ALL, singular_quats
+from function_table import ALL, same_output, singular_quats
 
-PATH_DEPENDENT = ["quat_to_matrix", "quat_multiply", "euler_to_matrix[ZYX]", "quat_rotate", "matrix_to_quat"]
+PATH_DEPENDENT = ["quat_to_matrix", "quat_multiply", "quat_rotate", "matrix_to_quat"] + [
+    f"{fn}[{c}]" for fn in ("euler_to_matrix", "quat_to_euler", "matrix_to_euler") for c in ("ZYX", "xyz", "ZXZ", "yxy")]
+
 
 
 @pytest.mark.parametrize("name", PATH_DEPENDENT)
@@ -22,7 +24,17 @@ def test_small_and_large_batch_paths_agree(name, monkeypatch):
         large = fn(*inputs)
         g_large = torch.autograd.grad(large.sum(), inputs)
         monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 4096)
-        assert torch.allclose(small, large, atol=1e-14, rtol=0)
+        if "to_euler" in name:
+            # Next to lock single angles are ill-conditioned (rounding moves them, not the
+            # rotation they make), and exactly at lock the middle angle has a kink whose
+            # subgradient follows the rounding: compare rotations, and gradients off lock.
+            convention = name[-4:-1]
+            assert torch.allclose(tq.euler_to_matrix(small, convention), tq.euler_to_matrix(large, convention), atol=1e-13)
+            assert all(torch.isfinite(a).all() and torch.isfinite(b).all() for a, b in zip(g_small, g_large))
+            if make is singular:
+                continue
+        else:
+            assert same_output(name, small, large, 1e-14)
         assert all(torch.isfinite(a).all() and torch.allclose(a, b, atol=1e-12) for a, b in zip(g_small, g_large))
 
 

@@ -66,8 +66,11 @@ def _compiled_for(fn: Callable, static: Tuple) -> Callable:
             return fn(*tensors, **options)
 
         # not functools.partial: torch.compile wraps those in one shared frame
+        # Inductor's CPU tiling heuristic drops to scalar code (std::atan2 per element, 10-25x
+        # slower) when many loads are strided, as the columns of an (N, 4) input are.
+        inductor_options = {"cpp.enable_tiling_heuristics": False} if _backend == "inductor" else None
         compiled = _compiled[key] = torch.compile(_fresh_copy(bound, len(_compiled)), dynamic=True, fullgraph=True,
-                                                     backend=_backend)
+                                                     backend=_backend, options=inductor_options)
     return compiled
 
 

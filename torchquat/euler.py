@@ -14,10 +14,10 @@ import torch
 from torch import Tensor
 
 from ._dispatch import kernel
-from ._math import constant, contract, safe_sqrt
+from ._math import _combination, constant, contract, is_small, safe_sqrt
 from ._validation import prepare, restore
 from .conventions import EULER_CONVENTIONS, EulerConvention, gimbal_eps, parse_convention
-from .matrix import matrix_to_quat_unchecked, quat_to_matrix_unchecked
+from .matrix import _SHEPPERD, _SHEPPERD_OFFSET, _SHEPPERD_ROWS, quat_to_matrix_unchecked
 from .quaternion import basis_product
 
 __all__ = ["euler_to_quat", "quat_to_euler", "euler_to_matrix", "matrix_to_euler", "euler_gimbal_lock"]
@@ -43,25 +43,68 @@ def _sign_table(convention: EulerConvention) -> Tuple[Tuple[int, ...], ...]:
     return tuple(rows)
 
 
+def _elementary_rotation_terms(axis: int):
+    """``(A0, A1, A2)`` with ``R_axis(a) = A0 + cos(a) A1 + sin(a) A2`` (3 x 3 integer lists)."""
+    e = [1 if i == axis else 0 for i in range(3)]
+    a0 = [[e[i] * e[j] for j in range(3)] for i in range(3)]
+    a1 = [[(1 if i == j else 0) - e[i] * e[j] for j in range(3)] for i in range(3)]
+    cross = [[0, -e[2], e[1]], [e[2], 0, -e[0]], [-e[1], e[0], 0]]  # [e]x
+    return a0, a1, cross
+
+
+def _matmul3(a, b):
+    return [[sum(a[i][k] * b[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
+
+
+def _matrix_table(convention: EulerConvention):
+    """27 x 9 table: ``R.flatten() = (b1 x b2 x b3).flatten() @ T`` with ``b_n = (1, cos a_n, sin a_n)``.
+
+    Each elementary rotation is ``A0 + c A1 + s A2``, so their product is a trilinear form in the
+    three ``b_n``: 27 constant matrices, one per choice of term from each factor (exact integers).
+    Intrinsic ``ABC`` is ``R_A R_B R_C``; extrinsic ``abc`` is ``R_c R_b R_a``.
+    """
+    terms = [_elementary_rotation_terms(axis) for axis in convention.axes]
+    table = []
+    for u in range(27):
+        factors = [terms[0][u // 9], terms[1][(u // 3) % 3], terms[2][u % 3]]
+        if not convention.intrinsic:
+            factors.reverse()
+        product = _matmul3(_matmul3(factors[0], factors[1]), factors[2])
+        table.append([float(v) for row in product for v in row])
+    return table
+
+
 _SIGN_TABLES: Dict[str, Tuple[Tuple[int, ...], ...]] = {
     name: _sign_table(conv) for name, conv in EULER_CONVENTIONS.items()
 }
+_MATRIX_TABLES = {name: _matrix_table(conv) for name, conv in EULER_CONVENTIONS.items()}
+
+
+def _trig_outer(angles: Tensor, with_one: bool) -> Tensor:
+    """Outer product over the three angles of ``(cos, sin)`` (``with_one``: ``(1, cos, sin)``),
+    flattened: ``(..., 3) -> (..., 8)`` or ``(..., 27)``."""
+    cs = torch.stack((torch.cos(angles), torch.sin(angles)), dim=-1)
+    if with_one:
+        cs = torch.nn.functional.pad(cs, (1, 0), value=1.0)
+    b1, b2, b3 = cs.unbind(-2)
+    return ((b1.unsqueeze(-1) * b2.unsqueeze(-2)).flatten(-2).unsqueeze(-1) * b3.unsqueeze(-2)).flatten(-2)
 
 
 @kernel
 def euler_to_quat_unchecked(angles: Tensor, convention: EulerConvention) -> Tensor:
-    half = angles * 0.5
-    cs = torch.stack((torch.cos(half), torch.sin(half)), dim=-1)  # (..., 3, 2)
-    c1, c2, c3 = cs.unbind(-2)
-    products = (c1[..., :, None, None] * c2[..., None, :, None] * c3[..., None, None, :]).flatten(-3)
+    products = _trig_outer(angles * constant("half", 0.5, angles), with_one=False)
     q = contract(products, "euler_signs_" + convention.name, _SIGN_TABLES[convention.name])
     # w >= 0 from w's sign alone (cheaper than standardize_sign; w == 0 exactly would need
-    # a product of float cosines and sines to cancel exactly)
-    return q * torch.where(q[..., :1] < 0, -1.0, 1.0)
+    # a product of float cosines and sines to cancel exactly, and then either sign is right)
+    return q * torch.copysign(constant("one", 1.0, q), q.narrow(-1, 0, 1))
 
 
 def _to_radians(angles: Tensor, degrees: bool) -> Tensor:
-    return angles * (math.pi / 180.0) if degrees else angles
+    return angles * constant("radians_per_degree", math.pi / 180.0, angles) if degrees else angles
+
+
+def _to_degrees(angles: Tensor, degrees: bool) -> Tensor:
+    return angles * constant("degrees_per_radian", 180.0 / math.pi, angles) if degrees else angles
 
 
 def euler_to_quat(angles: Tensor, convention: str, degrees: bool = False) -> Tensor:
@@ -91,6 +134,12 @@ def euler_to_quat(angles: Tensor, convention: str, degrees: bool = False) -> Ten
 
 @kernel
 def euler_to_matrix_unchecked(angles: Tensor, convention: EulerConvention) -> Tensor:
+    if is_small(angles, 3):
+        # one trilinear form: 6 dispatches for the trig and the outer product, one matmul
+        R = contract(_trig_outer(angles, with_one=True), "euler_matrix_" + convention.name,
+                     _MATRIX_TABLES[convention.name])
+        return R.unflatten(-1, (3, 3))
+    # large batches: the 27-column outer product costs more memory passes than the quaternion
     return quat_to_matrix_unchecked(euler_to_quat_unchecked(angles, convention=convention))
 
 
@@ -143,47 +192,181 @@ def _abcd_table(conv: EulerConvention):
 
 _ABCD = {name: _abcd_table(conv) for name, conv in EULER_CONVENTIONS.items()}
 
+# Where each product q_i q_j sits among Shepperd's ten entries of 4 q q^T (see matrix.py).
+_PAIR_SLOT = {(i, j): _SHEPPERD_ROWS[i][j] for i in range(4) for j in range(4)}
 
-def _lock_cases(q: Tensor, conv: EulerConvention, eps: float):
-    """``(a, b, c, d)``, ``(|(a, b)|^2, |(c, d)|^2)`` and which rows are within ``eps`` of lock.
 
-    The middle angle (before any pi/2 shift) is ``2 atan2(|(c, d)|, |(a, b)|)``; it is within
-    ``eps`` of 0 iff ``|(c, d)| <= tan(eps / 2) |(a, b)|`` and within ``eps`` of pi iff
-    ``|(a, b)| <= tan(eps / 2) |(c, d)|``. Neither side subtracts nearly equal numbers.
+def _build_forms_tables(name: str):
+    """The 14 quadratic forms in ``(a, b, c, d)`` that give the angles, as linear maps of
+    ``q q^T`` (16 x 14) and of ``R`` (9 x 14 plus an offset, using ``|q| = 1``).
+
+    Bernardes and Viollet's angles (extrinsic order) are ``t1 = atan2(b, a) - atan2(d, c)``,
+    ``t3 = atan2(b, a) + atan2(d, c)`` and ``t2 = 2 atan2(|(c, d)|, |(a, b)|)``. By the
+    angle-sum identities each is an ``atan2`` of two quadratic forms: ``t1 = atan2(bc - ad,
+    ac + bd)``, ``t2 = atan2(2h, |ab|^2 - |cd|^2)`` with ``h = |(a, b)| |(c, d)|``, the norm of
+    ``t1``'s pair, and the well-conditioned double angles ``2 atan2(b, a) = atan2(2ab, a^2 - b^2)``
+    and ``2 atan2(d, c) = atan2(2cd, c^2 - d^2)``. Near lock ``t1`` and ``t3`` are each
+    ill-conditioned but their sum (middle near 0) or difference (near pi) is not, so ``t3`` is
+    formed as ``D -+ t1`` from the dominant double angle ``D``: the returned angles then
+    reproduce the rotation to rounding right up to the lock. Quadratic forms of ``q`` are
+    linear in ``R``, so a matrix needs no quaternion and no square root. The lock test
+    ``|(c, d)| <= tan(eps/2) |(a, b)|`` (or the reverse) is ``h <= tan(eps/2) max(|ab|^2, |cd|^2)``:
+    no cancellation near lock, so an exact lock is caught in float32 too.
+
+    Columns: 0-1 ``t1`` (times 2, so the pair's norm is ``2h``); 2-3 and 4-5 the double angles
+    ``2 atan2(b, a)`` and ``2 atan2(d, c)`` (times the Tait-Bryan sign); 6-7 and 8-9 ``t1`` at
+    lock near 0 and near pi (extrinsic only: SciPy's rule puts the rotation in the first
+    letter's angle, which is ``t1`` there and ``t3`` for intrinsic); 10-11 ``(|ab|^2, |cd|^2)``; 12 the middle angle's other argument (``Z = |ab|^2 - |cd|^2``, or ``-Z``
+    for Tait-Bryan, whose middle ``atan2(2h, Z) - pi/2`` is ``atan2(-Z, 2h)``); 13 ``|abcd|^2``.
     """
-    abcd = contract(q, "abcd_" + conv.name, _ABCD[conv.name][0])
-    norms2 = (abcd * abcd).unflatten(-1, (2, 2)).sum(-1)
-    ab2, cd2 = norms2.unbind(-1)
-    t2 = math.tan(eps / 2.0) ** 2
-    return abcd, norms2, cd2 <= t2 * ab2, ab2 <= t2 * cd2
+    conv = EULER_CONVENTIONS[name]
+    P, sign = _ABCD[name]
+    tb = 1 if conv.symmetric else sign  # Tait-Bryan third angle's sign
+    a, b, c, d = range(4)
+
+    def form(*terms):  # terms: (coefficient, u, v) for coefficient * u * v over (a, b, c, d)
+        M = [[0.0] * 4 for _ in range(4)]
+        for coef, u, v in terms:
+            M[u][v] += coef / 2.0
+            M[v][u] += coef / 2.0
+        return M
+
+    zero = form()
+    ab2, cd2 = form((1, a, a), (1, b, b)), form((1, c, c), (1, d, d))
+    z_sign = 1 if conv.symmetric else -1
+    forms = [
+        form((2, b, c), (-2, a, d)), form((2, a, c), (2, b, d)),
+        form((2 * tb, a, b)), form((1, a, a), (-1, b, b)),
+        form((2 * tb, c, d)), form((1, c, c), (-1, d, d)),
+        zero if conv.intrinsic else form((2, a, b)), zero if conv.intrinsic else form((1, a, a), (-1, b, b)),
+        zero if conv.intrinsic else form((-2, c, d)), zero if conv.intrinsic else form((1, c, c), (-1, d, d)),
+        form((1, a, a), (1, b, b)), form((1, c, c), (1, d, d)),
+        form((z_sign, a, a), (z_sign, b, b), (-z_sign, c, c), (-z_sign, d, d)),
+        form((1, a, a), (1, b, b), (1, c, c), (1, d, d)),
+    ]
+    # in q: A = P M P^T; in R: q_i q_j = (R.flatten() @ S + s0)[slot(i, j)] / 4 (Shepperd)
+    abcd_table = [[M[u][v] for M in forms] for u in range(4) for v in range(4)]
+    quat_table = [[0.0] * len(forms) for _ in range(16)]
+    matrix_table = [[0.0] * len(forms) for _ in range(9)]
+    offset = [0.0] * len(forms)
+    for f, M in enumerate(forms):
+        for i in range(4):
+            for j in range(4):
+                A_ij = sum(P[i][u] * M[u][v] * P[j][v] for u in range(4) for v in range(4))
+                quat_table[4 * i + j][f] = A_ij
+                slot = _PAIR_SLOT[(i, j)]
+                for r in range(9):
+                    matrix_table[r][f] += A_ij * _SHEPPERD[r][slot] / 4.0
+                offset[f] += A_ij * _SHEPPERD_OFFSET[slot] / 4.0
+    return quat_table, matrix_table, offset, tb, abcd_table
+
+
+_FORMS_TABLES = {name: _build_forms_tables(name) for name in EULER_CONVENTIONS}
+
+
+def _forms_tables(name: str):
+    return _FORMS_TABLES[name]
+
+
+def _quat_forms(q: Tensor, conv: EulerConvention) -> Tensor:
+    return contract((q.unsqueeze(-1) * q.unsqueeze(-2)).flatten(-2), "euler_q_forms_" + conv.name,
+                    _forms_tables(conv.name)[0])
+
+
+def _matrix_forms(R: Tensor, conv: EulerConvention) -> Tensor:
+    _, table, offset = _forms_tables(conv.name)[:3]
+    return (contract(R.flatten(-2), "euler_R_forms_" + conv.name, table)
+            + constant("euler_R_offset_" + conv.name, offset, R))
+
+
+def _lock(forms: Tensor, eps: float):
+    """``2h`` and the lock mask ``2h <= 2 tan(eps/2) max(|ab|^2, |cd|^2)``, from the forms (the
+    one test every function uses)."""
+    two_h = torch.linalg.vector_norm(forms.narrow(-1, 0, 2), dim=-1)  # its gradient is 0 at h = 0
+    scale = 2.0 * math.tan(eps / 2.0)
+    if not torch.compiler.is_compiling():  # (under compile eps may be symbolic: no cache key)
+        scale = constant(f"lock_scale_{eps!r}", scale, forms)
+    return two_h, two_h <= forms.narrow(-1, 10, 2).amax(-1) * scale
+
+
+def _angles_from_forms(forms: Tensor, conv: EulerConvention, eps: float) -> Tensor:
+    two_h, locked = _lock(forms, eps)
+    t1, double_zero, double_pi, t1_lock_zero, t1_lock_pi = forms.narrow(-1, 0, 10).unflatten(-1, (5, 2)).unbind(-2)
+    other = forms.select(-1, 12)
+    middle = torch.stack((two_h, other) if conv.symmetric else (other, two_h), dim=-1)
+    near_zero = (forms.select(-1, 10) >= forms.select(-1, 11)).unsqueeze(-1)
+    # Choose each (Y, X) pair *before* atan2, so a discarded pair (which is (0, 0) at an exact
+    # lock, where atan2's gradient is NaN) never reaches it.
+    if conv.intrinsic:
+        t1_locked = constant("atan2_zero", [0.0, 1.0], forms)
+    else:
+        t1_locked = torch.where(near_zero, t1_lock_zero, t1_lock_pi)
+    t1 = torch.where(locked.unsqueeze(-1), t1_locked, t1)
+    double = torch.where(near_zero, double_zero, double_pi)
+    t1, middle, double = torch.atan2(*torch.stack((t1, middle, double), dim=-1).unbind(-2)).unbind(-1)
+    # t3 = D - t1 (middle near 0) or D + t1 (near pi), times the Tait-Bryan sign, in [-pi, pi]
+    tb = _forms_tables(conv.name)[3]
+    step = torch.where(near_zero.squeeze(-1), constant(f"t3_near_zero{tb}", -float(tb), forms),
+                       constant(f"t3_near_pi{tb}", float(tb), forms))
+    pi = constant("pi", math.pi, forms)
+    t3 = torch.remainder(torch.addcmul(double + pi, t1, step), constant("two_pi", 2.0 * math.pi, forms)) - pi
+    if conv.intrinsic:  # the letters' third angle is t1, exactly atan2(0, 1) = 0 at lock
+        return torch.stack((t3, middle, t1), dim=-1)
+    # at lock t3 = D - D is 0 only to rounding; SciPy's rule makes it exactly 0
+    return torch.stack((t1, middle, torch.where(locked, constant("zero", 0.0, forms), t3)), dim=-1)
+
+
+def _angles_columnwise(products, forms_table, offset, conv: EulerConvention, eps: float, scaled: bool) -> Tensor:
+    """The same angles as :func:`_angles_from_forms`, written column by column with the tables'
+    numbers as literals: for large batches (a handful of passes over 1-D columns instead of
+    strided pair tensors) and for ``torch.compile``, which fuses it into one vectorised loop.
+    ``products``: the columns the forms are linear in (``q_i q_j``, or R's entries);
+    ``scaled``: divide by ``|abcd|^2`` (quaternions: NaN for q = 0)."""
+    f = [_combination(products, [row[k] for row in forms_table]) for k in range(len(forms_table[0]))]
+    if offset is not None:
+        f = [column + o if o else column for column, o in zip(f, offset)]
+    if scaled:
+        inverse = 1.0 / f[13]
+        f = [column * inverse for column in f[:13]]
+    two_h = safe_sqrt(f[0] * f[0] + f[1] * f[1])
+    ab2, cd2 = f[10], f[11]
+    near_zero = ab2 >= cd2
+    locked = two_h <= torch.maximum(ab2, cd2) * (2.0 * math.tan(eps / 2.0))
+    y1, x1 = f[0], f[1]
+    if conv.intrinsic:
+        y1, x1 = torch.where(locked, 0.0, y1), torch.where(locked, 1.0, x1)
+    else:
+        y1 = torch.where(locked, torch.where(near_zero, f[6], f[8]), y1)
+        x1 = torch.where(locked, torch.where(near_zero, f[7], f[9]), x1)
+    t1 = torch.atan2(y1, x1)
+    middle = torch.atan2(two_h, f[12]) if conv.symmetric else torch.atan2(f[12], two_h)
+    double = torch.atan2(torch.where(near_zero, f[2], f[4]), torch.where(near_zero, f[3], f[5]))
+    tb = _forms_tables(conv.name)[3]
+    t3 = double + torch.where(near_zero, -float(tb), float(tb)) * t1
+    t3 = torch.where(t3 > math.pi, t3 - 2.0 * math.pi, torch.where(t3 < -math.pi, t3 + 2.0 * math.pi, t3))
+    if conv.intrinsic:
+        return torch.stack((t3, middle, t1), dim=-1)
+    return torch.stack((t1, middle, torch.where(locked, 0.0, t3)), dim=-1)
+
+
+def _pair_columns(c):
+    """The 16 products ``c_i c_j`` (row-major) of four columns, each computed once."""
+    squares = {}
+    for i in range(4):
+        for j in range(i, 4):
+            squares[i, j] = c[i] * c[j]
+    return [squares[min(i, j), max(i, j)] for i in range(4) for j in range(4)]
 
 
 @kernel
 def quat_to_euler_unchecked(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
-    conv, sign = convention, _ABCD[convention.name][1]
-    abcd, norms2, near_zero, near_pi = _lock_cases(q, conv, eps)
-    norms = safe_sqrt(norms2)
-    middle = 2.0 * torch.atan2(norms[..., 1], norms[..., 0])
-    # (half sum, half difference) = (atan2(b, a), atan2(d, c)). Near lock one of them is
-    # atan2(0, 0), whose gradient is NaN: feed the unused one a safe (0, 1) argument.
-    unused = torch.stack((near_pi, near_zero), dim=-1)
-    halves = torch.atan2(torch.where(unused, 0.0, abcd[..., 1::2]), torch.where(unused, 1.0, abcd[..., 0::2]))
-    half_sum, half_diff = halves.unbind(-1)
-    extrinsic = not conv.intrinsic
-    # SciPy's rule at lock: the third angle is 0 and the first carries the rotation.
-    locked = 2.0 * torch.where(near_zero, half_sum, half_diff * (-1.0 if extrinsic else 1.0))
-    locked_pair = locked.unsqueeze(-1) * constant("lock_first" if extrinsic else "lock_third",
-                                                  [1.0, 0.0] if extrinsic else [0.0, 1.0], q)
-    regular = ~(near_zero | near_pi)
-    # (first, third) in the extrinsic order the method computes: (half_sum -+ half_diff)
-    pair = torch.where(regular.unsqueeze(-1), contract(halves, "sum_diff", [[1.0, 1.0], [-1.0, 1.0]]), locked_pair)
-    if not conv.symmetric:
-        pair = pair * constant(f"tait_bryan_sign{sign}", [1.0, float(sign)], q)
-        middle = middle - math.pi / 2.0
-    first, third = (torch.remainder(pair + math.pi, 2.0 * math.pi) - math.pi).unbind(-1)
-    angles = torch.stack((first, middle, third) if extrinsic else (third, middle, first), dim=-1)
-    # |(a, b)|^2 + |(c, d)|^2 = 0 only for q = 0: no rotation, so NaN, not a plausible (0, -pi/2, 0).
-    return torch.where((norms2.sum(-1) == 0).unsqueeze(-1), torch.nan, angles)
+    if not is_small(q, 4):
+        P = _ABCD[convention.name][0]
+        abcd = [_combination(q.unbind(-1), [row[m] for row in P]) for m in range(4)]
+        return _angles_columnwise(_pair_columns(abcd), _forms_tables(convention.name)[4], None, convention, eps, True)
+    forms = _quat_forms(q, convention)
+    # scale-invariant, so any |q| > 0 is fine; q = 0 gives 0 / 0 = NaN, not a plausible angle
+    return _angles_from_forms(forms / forms.narrow(-1, 13, 1), convention, eps)
 
 
 def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Optional[float] = None) -> Tensor:
@@ -198,7 +381,7 @@ def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Option
             rotation (SciPy's rule); :func:`euler_gimbal_lock` returns the mask.
 
     Returns:
-        Angles in the convention's letter order: first and third in ``[-pi, pi)``; the middle in
+        Angles in the convention's letter order: first and third in ``[-pi, pi]``; the middle in
         ``[-pi/2, pi/2]`` (Tait-Bryan) or ``[0, pi]`` (proper Euler). Gradients are finite
         everywhere, gimbal lock included.
 
@@ -213,19 +396,24 @@ def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Option
     conv = parse_convention(convention, "quat_to_euler")
     q, dtype = prepare(q, "quat_to_euler", "q", (4,))
     angles = quat_to_euler_unchecked(q, convention=conv, eps=gimbal_eps(q.dtype) if eps is None else float(eps))
-    return restore(angles * (180.0 / math.pi) if degrees else angles, dtype)
+    return restore(_to_degrees(angles, degrees), dtype)
 
 
 @kernel
 def matrix_to_euler_unchecked(R: Tensor, convention: EulerConvention, eps: float) -> Tensor:
-    return quat_to_euler_unchecked(matrix_to_quat_unchecked(R), convention=convention, eps=eps)
+    if not is_small(R, 9):
+        _, table, offset = _forms_tables(convention.name)[:3]
+        return _angles_columnwise(R.flatten(-2).unbind(-1), table, offset, convention, eps, False)
+    return _angles_from_forms(_matrix_forms(R, convention), convention, eps)
 
 
 def matrix_to_euler(R: Tensor, convention: str, degrees: bool = False, eps: Optional[float] = None) -> Tensor:
     """Euler angles of a rotation matrix in any of the 24 conventions.
 
-    Goes through the quaternion (Shepperd), which keeps full precision next to gimbal lock
-    where ``asin`` of a matrix entry does not.
+    The same Bernardes-Viollet angles as :func:`quat_to_euler`, with their quadratic forms read
+    off R's entries directly (no quaternion, no square root): every angle is an ``atan2`` of
+    two linear combinations of entries, which keeps full precision next to gimbal lock where
+    ``asin`` of an entry does not. ``R`` is assumed orthogonal with det +1.
 
     Args:
         R: rotation matrices.
@@ -246,17 +434,20 @@ def matrix_to_euler(R: Tensor, convention: str, degrees: bool = False, eps: Opti
     conv = parse_convention(convention, "matrix_to_euler")
     R, dtype = prepare(R, "matrix_to_euler", "R", (3, 3))
     angles = matrix_to_euler_unchecked(R, convention=conv, eps=gimbal_eps(R.dtype) if eps is None else float(eps))
-    return restore(angles * (180.0 / math.pi) if degrees else angles, dtype)
+    return restore(_to_degrees(angles, degrees), dtype)
 
 
 def euler_gimbal_lock(q: Tensor, convention: str, eps: Optional[float] = None) -> Tensor:
     """Which rotations are within ``eps`` of gimbal lock for ``convention``.
 
-    Uses exactly the test :func:`quat_to_euler` uses, so a ``True`` row is one whose third
-    angle was set to 0. No warning is raised anywhere (that would need a device sync).
+    Uses exactly the test :func:`quat_to_euler` (for quaternions) or :func:`matrix_to_euler`
+    (for matrices) uses, so a ``True`` row is one whose third angle was set to 0. A matrix is
+    tested on its own entries: for a rotation exactly ``eps`` from lock, a matrix and its
+    quaternion may round to different answers. No warning is raised anywhere (that would need a
+    device sync).
 
     Args:
-        q: quaternions ``(w, x, y, z)``.
+        q: quaternions ``(w, x, y, z)``, or rotation matrices.
         convention: as in :func:`euler_to_quat`.
         eps: threshold in radians on the middle angle, default as in :func:`quat_to_euler`.
 
@@ -264,15 +455,17 @@ def euler_gimbal_lock(q: Tensor, convention: str, eps: Optional[float] = None) -
         A boolean mask.
 
     Shape:
-        ``(..., 4)`` -> ``(...)``.
+        ``(..., 4)`` or ``(..., 3, 3)`` -> ``(...)``.
 
     Example:
         >>> q = euler_to_quat(torch.tensor([10., 90., 0.], dtype=torch.float64), "ZYX", degrees=True)
         >>> euler_gimbal_lock(q, "ZYX")
         tensor(True)
+        >>> euler_gimbal_lock(quat_to_matrix(q), "zyx")  # extrinsic zyx: not at its lock
+        tensor(False)
     """
     conv = parse_convention(convention, "euler_gimbal_lock")
-    q, _ = prepare(q, "euler_gimbal_lock", "q", (4,))
-    eps = gimbal_eps(q.dtype) if eps is None else float(eps)
-    _, _, near_zero, near_pi = _lock_cases(q, conv, eps)
-    return near_zero | near_pi
+    is_matrix = isinstance(q, Tensor) and q.dim() >= 2 and tuple(q.shape[-2:]) == (3, 3)
+    x, _ = prepare(q, "euler_gimbal_lock", "q", (3, 3) if is_matrix else (4,))
+    eps = gimbal_eps(x.dtype) if eps is None else float(eps)
+    return _lock(_matrix_forms(x, conv) if is_matrix else _quat_forms(x, conv), eps)[1]
