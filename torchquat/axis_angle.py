@@ -9,7 +9,7 @@ import torch
 from torch import Tensor
 
 from ._dispatch import kernel
-from ._math import small_angle_threshold
+from ._math import constant, small_angle_threshold
 from ._validation import prepare, restore
 from .matrix import matrix_to_quat_unchecked
 
@@ -18,16 +18,16 @@ __all__ = ["axis_angle_to_quat", "quat_to_axis_angle", "axis_angle_to_matrix", "
 
 @kernel
 def axis_angle_to_quat_unchecked(v: Tensor) -> Tensor:
-    theta2 = (v * v).sum(-1, keepdim=True)
-    small = theta2 < small_angle_threshold(v.dtype)
-    theta = torch.sqrt(torch.where(small, 1.0, theta2))  # safe stand-in where the series is used
-    half = 0.5 * theta
+    theta = torch.linalg.vector_norm(v, dim=-1, keepdim=True)  # gradient 0 (not NaN) at v = 0
     # Below theta^2 = sqrt(eps) the next series terms (theta^4/384, theta^4/3840) are under eps.
-    cos_half = torch.where(small, 1.0 - 0.125 * theta2, torch.cos(half))
-    sinc_half = torch.where(small, 0.5 - theta2 / 48.0, torch.sin(half) / theta)
+    small = theta < constant("axis_angle_small", small_angle_threshold(v.dtype) ** 0.5, v)
+    theta_safe = torch.where(small, constant("one", 1.0, v), theta)  # what the closed form sees there
+    half = theta_safe * constant("half", 0.5, v)
+    cos_half = torch.where(small, torch.addcmul(constant("one", 1.0, v), theta, theta, value=-0.125), torch.cos(half))
+    sinc_half = torch.where(small, torch.addcmul(constant("half", 0.5, v), theta, theta, value=-1.0 / 48.0),
+                            torch.sin(half) / theta_safe)
     # w >= 0: cos(theta / 2) of a float angle is never exactly 0, so its sign alone decides.
-    sign = torch.where(cos_half < 0, -1.0, 1.0)
-    return torch.cat((cos_half * sign, v * (sinc_half * sign)), dim=-1)
+    return torch.cat((cos_half, v * sinc_half), dim=-1) * torch.copysign(constant("one", 1.0, v), cos_half)
 
 
 def axis_angle_to_quat(v: Tensor) -> Tensor:
@@ -53,17 +53,18 @@ def axis_angle_to_quat(v: Tensor) -> Tensor:
 @kernel
 def quat_to_axis_angle_unchecked(q: Tensor) -> Tensor:
     # shortest arc: use the w >= 0 copy (at w == 0 both copies are half turns, either is right)
-    hemisphere = torch.where(q[..., :1] < 0, -1.0, 1.0)
-    w, u = q[..., :1] * hemisphere, q[..., 1:] * hemisphere
-    n2 = (u * u).sum(-1, keepdim=True)
+    w, u = q.narrow(-1, 0, 1), q.narrow(-1, 1, 3)
+    hemisphere = torch.copysign(constant("two", 2.0, q), w)  # the factor 2 of the angle, signed
+    w = w.abs()
+    n = torch.linalg.vector_norm(u, dim=-1, keepdim=True)  # gradient 0 (not NaN) at u = 0
     # angle / |u| = 2 atan2(|u|, w) / |u| = (2 / w)(1 - r^2/3 + ...) with r = |u| / w: below
     # r^2 = eps the limit 2 / w is exact to rounding. Above it the closed form is accurate, and
     # its gradient's cancellation costs at most eps / r relative, on a term of size r.
-    small = n2 <= torch.finfo(q.dtype).eps * (w * w)
-    n = torch.sqrt(torch.where(small, 1.0, n2))
-    w_safe = torch.where(small, w, 1.0)  # w = 0 (a half turn) only reaches the closed form
-    scale = torch.where(small, 2.0 / w_safe, 2.0 * torch.atan2(n, w) / n)
-    return u * scale
+    small = n <= constant("sqrt_eps", torch.finfo(q.dtype).eps ** 0.5, q) * w
+    n_safe = torch.where(small, constant("one", 1.0, q), n)
+    w_safe = torch.where(small, w, constant("one", 1.0, q))  # w = 0 (a half turn) only reaches the closed form
+    scale = torch.where(small, torch.reciprocal(w_safe), torch.atan2(n_safe, w) / n_safe)
+    return u * (scale * hemisphere)
 
 
 def quat_to_axis_angle(q: Tensor) -> Tensor:

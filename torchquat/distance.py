@@ -6,28 +6,28 @@ from torch import Tensor
 from ._dispatch import kernel
 from ._math import constant
 from ._validation import prepare_pair, restore
-from .quaternion import CONJUGATE_SIGNS, hamilton_product
 
 __all__ = ["quat_geodesic_distance", "matrix_geodesic_distance"]
 
 
 @kernel
 def quat_geodesic_distance_unchecked(q1: Tensor, q2: Tensor) -> Tensor:
-    # The relative rotation conj(q1) q2 = (w, v) has angle 2 atan2(|v|, |w|): invariant to the
-    # signs and scales of q1 and q2, accurate at 0 and pi, and vector_norm's gradient is 0 (not
-    # NaN) at v = 0, the kink of the distance. w = <q1, q2>.
-    # vec(conj(q1) q2) = vec(conj(q1) (q2 - q1)) because conj(q1) q1 is real: computed from the
-    # difference it is exactly 0 for equal inputs and has no cancellation for close ones.
-    vector = hamilton_product(q1 * constant("conjugate", CONJUGATE_SIGNS, q1), q2 - q1)[..., 1:]
-    sine, cosine = torch.linalg.vector_norm(vector, dim=-1), (q1 * q2).sum(-1).abs()
-    angle = 2.0 * torch.atan2(sine, cosine)
-    return torch.where(sine + cosine == 0, torch.nan, angle)  # a zero quaternion is no rotation
+    # For unit p, q at half-angle a apart (<p, q> = cos a): |p - q| = 2 sin(a/2) and
+    # |p + q| = 2 cos(a/2), so the angle 2a is 4 atan2(|p - q|, |p + q|); taking the smaller of
+    # the two norms over the larger picks the nearer of q and -q (sign invariance). Both norms
+    # keep full precision at 0 and pi, the difference is exactly 0 for equal inputs, and
+    # vector_norm's gradient there is 0 (not NaN): the kink of the distance.
+    p = q1 / torch.linalg.vector_norm(q1, dim=-1, keepdim=True)  # 0 / 0 = NaN for a zero quaternion
+    q = q2 / torch.linalg.vector_norm(q2, dim=-1, keepdim=True)
+    chords = torch.linalg.vector_norm(torch.stack((p - q, p + q), dim=-2), dim=-1)
+    shorter, longer = torch.aminmax(chords, dim=-1)
+    return torch.atan2(shorter, longer) * constant("four", 4.0, shorter)
 
 
 def quat_geodesic_distance(q1: Tensor, q2: Tensor) -> Tensor:
     """Angle of the rotation between two quaternions, sign-invariant (``q`` and ``-q`` agree).
 
-    Computed as ``2 atan2(|v|, |w|)`` of the relative rotation ``(w, v) = conj(q1) q2``: accurate
+    Computed as ``4 atan2(min(|p - q|, |p + q|), max(...))`` of the normalised inputs: accurate
     near 0 and pi, where ``2 acos(|<q1, q2>|)`` loses half its digits and has an infinite
     gradient. The gradient is finite everywhere (0 at distance 0, the kink of the distance).
 
@@ -55,11 +55,10 @@ def matrix_geodesic_distance_unchecked(R1: Tensor, R2: Tensor) -> Tensor:
     # vee(M - M^T) = sum_k (R1 column k) x (R2 column k), and R1's own columns contribute
     # nothing, so cross with R2 - R1: exactly 0 for equal inputs (no rounding noise, hence a zero
     # gradient at zero distance) and no cancellation for close ones.
-    R1, R2 = torch.broadcast_tensors(R1, R2)
     vee = torch.linalg.cross(R1, R2 - R1, dim=-2).sum(-1)
     trace = (R1 * R2).sum((-2, -1))
     # tan(angle) = |vee| / (tr M - 1): both keep full precision at 0 and pi.
-    return torch.atan2(torch.linalg.vector_norm(vee, dim=-1), trace - 1.0)
+    return torch.atan2(torch.linalg.vector_norm(vee, dim=-1), trace - constant("one", 1.0, trace))
 
 
 def matrix_geodesic_distance(R1: Tensor, R2: Tensor) -> Tensor:

@@ -232,7 +232,6 @@ def _build_forms_tables(name: str):
         return M
 
     zero = form()
-    ab2, cd2 = form((1, a, a), (1, b, b)), form((1, c, c), (1, d, d))
     z_sign = 1 if conv.symmetric else -1
     forms = [
         form((2, b, c), (-2, a, d)), form((2, a, c), (2, b, d)),

@@ -107,18 +107,31 @@ def matrix_to_quat_unchecked(R: Tensor) -> Tensor:
     ``argmax`` and ``gather``, so there is no data-dependent branch and no device sync; all ten
     distinct entries of ``4 q q^T`` come from one small matmul.
     """
+    if torch.compiler.is_compiling():
+        return _shepperd_columnwise(R)
     vals = contract(R.flatten(-2), "shepperd", _SHEPPERD) + constant("shepperd_offset", _SHEPPERD_OFFSET, R)
     best = vals[..., :4].argmax(-1)
-    if torch.compiler.is_compiling():
-        # a select chain over the four candidate rows fuses; a gather from a computed buffer does not
-        rows = [torch.stack([vals[..., i] for i in r], dim=-1) for r in _SHEPPERD_ROWS]
-        best = best.unsqueeze(-1)
-        row = torch.where(best == 0, rows[0], torch.where(best == 1, rows[1], torch.where(best == 2, rows[2], rows[3])))
-    else:
-        row = vals.gather(-1, constant("shepperd_rows", _SHEPPERD_ROWS, best)[best])
+    row = vals.gather(-1, constant("shepperd_rows", _SHEPPERD_ROWS, best)[best])
     # Normalise and make it canonical (w >= 0; see standardize_sign) with one multiplication.
     scale = torch.rsqrt((row * row).sum(-1, keepdim=True)) * standardize_sign(row)
     return row * scale
+
+
+def _shepperd_columnwise(R: Tensor) -> Tensor:
+    """:func:`matrix_to_quat_unchecked` column by column, for ``torch.compile``: inductor fuses
+    it into one vectorised loop, where a ``gather`` from a computed buffer would not fuse."""
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = R.flatten(-2).unbind(-1)
+    vals = (1.0 + r00 + r11 + r22, 1.0 + r00 - r11 - r22, 1.0 - r00 + r11 - r22, 1.0 - r00 - r11 + r22,
+            r21 - r12, r02 - r20, r10 - r01, r10 + r01, r02 + r20, r21 + r12)
+    best, row = vals[0], [vals[i] for i in _SHEPPERD_ROWS[0]]
+    for k in range(1, 4):  # the first largest wins, as argmax's
+        take = vals[k] > best
+        best = torch.where(take, vals[k], best)
+        row = [torch.where(take, vals[i], r) for i, r in zip(_SHEPPERD_ROWS[k], row)]
+    w, x, y, z = row
+    key = 8.0 * torch.sign(w) + 4.0 * torch.sign(x) + 2.0 * torch.sign(y) + torch.sign(z)
+    scale = torch.rsqrt(w * w + x * x + y * y + z * z) * torch.where(key < 0, -1.0, 1.0)
+    return torch.stack((w * scale, x * scale, y * scale, z * scale), dim=-1)
 
 
 def matrix_to_quat(R: Tensor) -> Tensor:

@@ -138,7 +138,7 @@ def standardize_sign(q: Tensor) -> Tensor:
     # sign(8 sign(w) + 4 sign(x) + 2 sign(y) + sign(z)) is the sign of the first non-zero
     # component (each weight exceeds the sum of the later ones): 3 ops instead of nested wheres.
     key = contract(torch.sign(q), "lexicographic", [8.0, 4.0, 2.0, 1.0])
-    return torch.where(key < 0, -1.0, 1.0).to(q.dtype).unsqueeze(-1)
+    return torch.copysign(constant("one", 1.0, q), key.unsqueeze(-1))  # key = +0 only for q = 0
 
 
 @kernel

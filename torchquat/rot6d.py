@@ -1,9 +1,12 @@
 """6D (two columns, Zhou et al. 2019) and 9D (SVD projection, Levinson et al. 2020) rotations."""
 
+import math
+
 import torch
 from torch import Tensor
 
 from ._dispatch import kernel
+from ._math import constant
 from ._validation import prepare, restore
 from .errors import ShapeError
 
@@ -12,18 +15,17 @@ __all__ = ["rot6d_to_matrix", "matrix_to_rot6d", "rot9d_to_matrix"]
 
 @kernel
 def rot6d_to_matrix_unchecked(x: Tensor) -> Tensor:
-    a1, a2 = x[..., :3], x[..., 3:]
-    b1 = a1 * torch.rsqrt((a1 * a1).sum(-1, keepdim=True))  # NaN for a zero first column
-    b2 = a2 - (b1 * a2).sum(-1, keepdim=True) * b1
-    n2 = (b2 * b2).sum(-1, keepdim=True)
+    a1, a2 = x.narrow(-1, 0, 3), x.narrow(-1, 3, 3)
+    b1 = a1 / torch.linalg.vector_norm(a1, dim=-1, keepdim=True)  # NaN for a zero first column
+    b2 = torch.addcmul(a2, b1, (b1 * a2).sum(-1, keepdim=True), value=-1.0)
+    n = torch.linalg.vector_norm(b2, dim=-1, keepdim=True)
     # Collinear to rounding: what is left of a2 is rounding noise, whose direction would be a
-    # plausible but arbitrary rotation. Give NaN instead.
-    noise = (16.0 * torch.finfo(x.dtype).eps) ** 2 * (a2 * a2).sum(-1, keepdim=True)
-    valid = n2 > noise
-    b2 = b2 * torch.where(valid, torch.rsqrt(torch.where(valid, n2, 1.0)), torch.nan)
-    b1 = torch.where(valid, b1, torch.nan)
-    b3 = torch.linalg.cross(b1, b2, dim=-1)
-    return torch.stack((b1, b2, b3), dim=-1)
+    # plausible but arbitrary rotation. Give NaN instead (the whole matrix).
+    noise = torch.linalg.vector_norm(a2, dim=-1, keepdim=True) * constant("rot6d_noise", 16.0 * torch.finfo(x.dtype).eps, x)
+    valid = torch.where(n > noise, constant("one", 1.0, x), constant("nan", math.nan, x))
+    b1 = b1 * valid
+    b2 = b2 * (valid / n)
+    return torch.stack((b1, b2, torch.linalg.cross(b1, b2, dim=-1)), dim=-1)
 
 
 def rot6d_to_matrix(x: Tensor) -> Tensor:

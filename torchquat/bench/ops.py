@@ -270,7 +270,6 @@ def _pypose(pp) -> Dict[str, Impl]:
 def _scipy(Rotation) -> Dict[str, Impl]:
     """SciPy on NumPy arrays: forward only, constructing the Rotation is part of the call."""
     R_ = Rotation
-    tensor = lambda f: (lambda *a: torch.from_numpy(f(*a)))  # noqa: E731  (for the check only)
     impls = {
         "quat_to_matrix": (lambda q: R_.from_quat(q, scalar_first=True).as_matrix(), ("q",),
                            "from_quat(q, scalar_first=True).as_matrix()"),
