@@ -9,7 +9,7 @@ import torch
 from torch import Tensor
 
 from ._dispatch import kernel
-from ._math import constant, small_angle_threshold
+from ._math import constant, is_small, small_angle_threshold
 from ._validation import prepare, restore
 from .matrix import matrix_to_quat_unchecked
 
@@ -18,6 +18,8 @@ __all__ = ["axis_angle_to_quat", "quat_to_axis_angle", "axis_angle_to_matrix", "
 
 @kernel
 def axis_angle_to_quat_unchecked(v: Tensor) -> Tensor:
+    if not is_small(v, 3):
+        return _axis_angle_to_quat_columnwise(v)
     theta = torch.linalg.vector_norm(v, dim=-1, keepdim=True)  # gradient 0 (not NaN) at v = 0
     # Below theta^2 = sqrt(eps) the next series terms (theta^4/384, theta^4/3840) are under eps.
     small = theta < constant("axis_angle_small", small_angle_threshold(v.dtype) ** 0.5, v)
@@ -52,6 +54,8 @@ def axis_angle_to_quat(v: Tensor) -> Tensor:
 
 @kernel
 def quat_to_axis_angle_unchecked(q: Tensor) -> Tensor:
+    if torch.compiler.is_compiling():
+        return _quat_to_axis_angle_columnwise(q)
     # shortest arc: use the w >= 0 copy (at w == 0 both copies are half turns, either is right)
     w, u = q.narrow(-1, 0, 1), q.narrow(-1, 1, 3)
     hemisphere = torch.copysign(constant("two", 2.0, q), w)  # the factor 2 of the angle, signed
@@ -65,6 +69,36 @@ def quat_to_axis_angle_unchecked(q: Tensor) -> Tensor:
     w_safe = torch.where(small, w, constant("one", 1.0, q))  # w = 0 (a half turn) only reaches the closed form
     scale = torch.where(small, torch.reciprocal(w_safe), torch.atan2(n_safe, w) / n_safe)
     return u * (scale * hemisphere)
+
+
+# Column by column: the same formulas on 1-D columns with Python-number constants. Under
+# torch.compile they fuse into one vectorised loop (broadcast (N, 1) factors and table buffers
+# do not); axis_angle_to_quat also takes it for large eager batches, where it is faster.
+
+
+def _axis_angle_to_quat_columnwise(v: Tensor) -> Tensor:
+    x, y, z = v.unbind(-1)
+    theta2 = x * x + y * y + z * z
+    small = theta2 < small_angle_threshold(v.dtype)
+    theta = torch.sqrt(torch.where(small, 1.0, theta2))
+    half = 0.5 * theta
+    cos_half = torch.where(small, 1.0 - 0.125 * theta2, torch.cos(half))
+    sinc_half = torch.where(small, 0.5 - theta2 / 48.0, torch.sin(half) / theta)
+    sign = torch.where(cos_half < 0, -1.0, 1.0)
+    s = sinc_half * sign
+    return torch.stack((cos_half * sign, x * s, y * s, z * s), dim=-1)
+
+
+def _quat_to_axis_angle_columnwise(q: Tensor) -> Tensor:
+    w, x, y, z = q.unbind(-1)
+    hemisphere = torch.where(w < 0, -2.0, 2.0)
+    w = w.abs()
+    n2 = x * x + y * y + z * z
+    small = n2 <= torch.finfo(q.dtype).eps * (w * w)
+    n = torch.sqrt(torch.where(small, 1.0, n2))
+    w_safe = torch.where(small, w, 1.0)
+    scale = torch.where(small, 1.0 / w_safe, torch.atan2(n, w) / n) * hemisphere
+    return torch.stack((x * scale, y * scale, z * scale), dim=-1)
 
 
 def quat_to_axis_angle(q: Tensor) -> Tensor:

@@ -4,7 +4,7 @@ import torch
 from torch import Tensor
 
 from ._dispatch import kernel
-from ._math import constant
+from ._math import constant, is_small, safe_sqrt
 from ._validation import prepare_pair, restore
 
 __all__ = ["quat_geodesic_distance", "matrix_geodesic_distance"]
@@ -17,11 +17,28 @@ def quat_geodesic_distance_unchecked(q1: Tensor, q2: Tensor) -> Tensor:
     # the two norms over the larger picks the nearer of q and -q (sign invariance). Both norms
     # keep full precision at 0 and pi, the difference is exactly 0 for equal inputs, and
     # vector_norm's gradient there is 0 (not NaN): the kink of the distance.
+    if not (is_small(q1, 4) and is_small(q2, 4)):
+        return _quat_distance_columnwise(q1, q2)
     p = q1 / torch.linalg.vector_norm(q1, dim=-1, keepdim=True)  # 0 / 0 = NaN for a zero quaternion
     q = q2 / torch.linalg.vector_norm(q2, dim=-1, keepdim=True)
     chords = torch.linalg.vector_norm(torch.stack((p - q, p + q), dim=-2), dim=-1)
     shorter, longer = torch.aminmax(chords, dim=-1)
     return torch.atan2(shorter, longer) * constant("four", 4.0, shorter)
+
+
+def _quat_distance_columnwise(q1: Tensor, q2: Tensor) -> Tensor:
+    """The same, column by column: fewer passes for large batches, and one fused vectorised loop
+    under ``torch.compile``."""
+    q1, q2 = torch.broadcast_tensors(q1, q2)
+    p, q = q1.unbind(-1), q2.unbind(-1)
+    inv_p = torch.rsqrt(sum(c * c for c in p))  # inf for a zero quaternion: 0 * inf = NaN
+    inv_q = torch.rsqrt(sum(c * c for c in q))
+    p = [c * inv_p for c in p]
+    q = [c * inv_q for c in q]
+    minus = safe_sqrt(sum((a - b) * (a - b) for a, b in zip(p, q)))  # gradient 0, not inf, at 0
+    plus = safe_sqrt(sum((a + b) * (a + b) for a, b in zip(p, q)))
+    # minimum/maximum split the gradient evenly at a tie (distance pi, a maximum): 0, as aminmax
+    return 4.0 * torch.atan2(torch.minimum(minus, plus), torch.maximum(minus, plus))
 
 
 def quat_geodesic_distance(q1: Tensor, q2: Tensor) -> Tensor:
@@ -51,6 +68,8 @@ def quat_geodesic_distance(q1: Tensor, q2: Tensor) -> Tensor:
 
 @kernel
 def matrix_geodesic_distance_unchecked(R1: Tensor, R2: Tensor) -> Tensor:
+    if torch.compiler.is_compiling():
+        return _matrix_distance_columnwise(R1, R2)
     # For M = R1^T R2, tr M = sum(R1 * R2): no matrix product is needed.
     # vee(M - M^T) = sum_k (R1 column k) x (R2 column k), and R1's own columns contribute
     # nothing, so cross with R2 - R1: exactly 0 for equal inputs (no rounding noise, hence a zero
@@ -59,6 +78,17 @@ def matrix_geodesic_distance_unchecked(R1: Tensor, R2: Tensor) -> Tensor:
     trace = (R1 * R2).sum((-2, -1))
     # tan(angle) = |vee| / (tr M - 1): both keep full precision at 0 and pi.
     return torch.atan2(torch.linalg.vector_norm(vee, dim=-1), trace - constant("one", 1.0, trace))
+
+
+def _matrix_distance_columnwise(R1: Tensor, R2: Tensor) -> Tensor:
+    """The same, column by column, for ``torch.compile`` (fuses into one vectorised loop)."""
+    R1, R2 = torch.broadcast_tensors(R1, R2)
+    a, b = R1.flatten(-2).unbind(-1), R2.flatten(-2).unbind(-1)
+    d = [y - x for x, y in zip(a, b)]
+    vee = [sum(a[3 * j + k] * d[3 * l + k] - a[3 * l + k] * d[3 * j + k] for k in range(3))
+           for j, l in ((1, 2), (2, 0), (0, 1))]  # sum over columns k of (R1 col k) x (d col k)
+    trace = sum(x * y for x, y in zip(a, b))
+    return torch.atan2(safe_sqrt(vee[0] * vee[0] + vee[1] * vee[1] + vee[2] * vee[2]), trace - 1.0)
 
 
 def matrix_geodesic_distance(R1: Tensor, R2: Tensor) -> Tensor:

@@ -14,7 +14,7 @@ import torch
 from torch import Tensor
 
 from ._dispatch import kernel
-from ._math import _combination, constant, contract, is_small, safe_sqrt
+from ._math import constant, contract, is_small, safe_sqrt
 from ._validation import prepare, restore
 from .conventions import EULER_CONVENTIONS, EulerConvention, gimbal_eps, parse_convention
 from .matrix import _SHEPPERD, _SHEPPERD_OFFSET, _SHEPPERD_ROWS, quat_to_matrix_unchecked
@@ -92,6 +92,15 @@ def _trig_outer(angles: Tensor, with_one: bool) -> Tensor:
 
 @kernel
 def euler_to_quat_unchecked(angles: Tensor, convention: EulerConvention) -> Tensor:
+    if not is_small(angles, 3):  # column by column: fewer passes; under compile one fused loop
+        half = [0.5 * a for a in angles.unbind(-1)]
+        cs = [(torch.cos(h), torch.sin(h)) for h in half]
+        pairs = [u * v for u in cs[0] for v in cs[1]]
+        products = [p * w for p in pairs for w in cs[2]]  # index 4 m1 + 2 m2 + m3, as the table's rows
+        table = _SIGN_TABLES[convention.name]
+        q = [sum(products[m] * table[m][k] for m in range(8) if table[m][k]) for k in range(4)]
+        sign = torch.where(q[0] < 0, -1.0, 1.0)
+        return torch.stack([c * sign for c in q], dim=-1)
     products = _trig_outer(angles * constant("half", 0.5, angles), with_one=False)
     q = contract(products, "euler_signs_" + convention.name, _SIGN_TABLES[convention.name])
     # w >= 0 from w's sign alone (cheaper than standardize_sign; w == 0 exactly would need
@@ -315,18 +324,48 @@ def _angles_from_forms(forms: Tensor, conv: EulerConvention, eps: float) -> Tens
     return torch.stack((t1, middle, torch.where(locked, constant("zero", 0.0, forms), t3)), dim=-1)
 
 
-def _angles_columnwise(products, forms_table, offset, conv: EulerConvention, eps: float, scaled: bool) -> Tensor:
+def _sparse_columns(table, offset=None):
+    """Each column of ``table`` as a tuple of its non-zero ``(row, coefficient)`` terms (and the
+    offset), so the column-wise path traces a few terms per form instead of a dense loop."""
+    columns = []
+    for k in range(len(table[0])):
+        terms = tuple((r, row[k]) for r, row in enumerate(table) if row[k] != 0)
+        columns.append((terms, offset[k] if offset else 0.0))
+    return tuple(columns)
+
+
+_PAIRS = tuple((i, j) for i in range(4) for j in range(i, 4))  # the 10 distinct products u v
+
+
+def _columnwise_tables(name: str):
+    """Sparse terms: ``(a, b, c, d)`` from q's components, the 14 forms from the 10 products of
+    ``(a, b, c, d)``, and the 14 forms from R's 9 entries."""
+    quat_table, matrix_table, offset, _, abcd_table = _forms_tables(name)
+    pair_table = [[0.0] * len(abcd_table[0]) for _ in _PAIRS]
+    for p, (u, v) in enumerate(_PAIRS):
+        for k in range(len(abcd_table[0])):  # M[u][v] + M[v][u] multiplies u v (u != v)
+            pair_table[p][k] = abcd_table[4 * u + v][k] * (1 if u == v else 2)
+    return _sparse_columns(_ABCD[name][0]), _sparse_columns(pair_table), _sparse_columns(matrix_table, offset)
+
+
+_COLUMNWISE = {name: _columnwise_tables(name) for name in EULER_CONVENTIONS}
+
+
+def _combine(columns, terms):
+    total = None
+    for r, k in terms[0]:
+        term = columns[r] if k == 1 else (-columns[r] if k == -1 else columns[r] * k)
+        total = term if total is None else total + term
+    if total is None:  # an unused form (intrinsic conventions' lock columns)
+        return terms[1]
+    return total + terms[1] if terms[1] else total
+
+
+def _angles_columnwise(forms, conv: EulerConvention, eps: float) -> Tensor:
     """The same angles as :func:`_angles_from_forms`, written column by column with the tables'
     numbers as literals: for large batches (a handful of passes over 1-D columns instead of
-    strided pair tensors) and for ``torch.compile``, which fuses it into one vectorised loop.
-    ``products``: the columns the forms are linear in (``q_i q_j``, or R's entries);
-    ``scaled``: divide by ``|abcd|^2`` (quaternions: NaN for q = 0)."""
-    f = [_combination(products, [row[k] for row in forms_table]) for k in range(len(forms_table[0]))]
-    if offset is not None:
-        f = [column + o if o else column for column, o in zip(f, offset)]
-    if scaled:
-        inverse = 1.0 / f[13]
-        f = [column * inverse for column in f[:13]]
+    strided pair tensors) and for ``torch.compile``, which fuses it into one vectorised loop."""
+    f = forms
     two_h = safe_sqrt(f[0] * f[0] + f[1] * f[1])
     ab2, cd2 = f[10], f[11]
     near_zero = ab2 >= cd2
@@ -348,21 +387,15 @@ def _angles_columnwise(products, forms_table, offset, conv: EulerConvention, eps
     return torch.stack((t1, middle, torch.where(locked, 0.0, t3)), dim=-1)
 
 
-def _pair_columns(c):
-    """The 16 products ``c_i c_j`` (row-major) of four columns, each computed once."""
-    squares = {}
-    for i in range(4):
-        for j in range(i, 4):
-            squares[i, j] = c[i] * c[j]
-    return [squares[min(i, j), max(i, j)] for i in range(4) for j in range(4)]
-
-
 @kernel
 def quat_to_euler_unchecked(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
     if not is_small(q, 4):
-        P = _ABCD[convention.name][0]
-        abcd = [_combination(q.unbind(-1), [row[m] for row in P]) for m in range(4)]
-        return _angles_columnwise(_pair_columns(abcd), _forms_tables(convention.name)[4], None, convention, eps, True)
+        abcd_terms, pair_terms, _ = _COLUMNWISE[convention.name]
+        abcd = [_combine(q.unbind(-1), terms) for terms in abcd_terms]
+        products = [abcd[u] * abcd[v] for u, v in _PAIRS]
+        forms = [_combine(products, terms) for terms in pair_terms]
+        inverse = 1.0 / forms[13]  # scale-invariant; q = 0 gives NaN
+        return _angles_columnwise([form * inverse for form in forms[:13]], convention, eps)
     forms = _quat_forms(q, convention)
     # scale-invariant, so any |q| > 0 is fine; q = 0 gives 0 / 0 = NaN, not a plausible angle
     return _angles_from_forms(forms / forms.narrow(-1, 13, 1), convention, eps)
@@ -401,8 +434,8 @@ def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Option
 @kernel
 def matrix_to_euler_unchecked(R: Tensor, convention: EulerConvention, eps: float) -> Tensor:
     if not is_small(R, 9):
-        _, table, offset = _forms_tables(convention.name)[:3]
-        return _angles_columnwise(R.flatten(-2).unbind(-1), table, offset, convention, eps, False)
+        entries = R.flatten(-2).unbind(-1)
+        return _angles_columnwise([_combine(entries, terms) for terms in _COLUMNWISE[convention.name][2]], convention, eps)
     return _angles_from_forms(_matrix_forms(R, convention), convention, eps)
 
 

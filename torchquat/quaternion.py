@@ -187,10 +187,23 @@ def quat_rotate(q: Tensor, v: Tensor) -> Tensor:
         tensor([0., 1., 0.])
     """
     q, v, dtype = prepare_pair("quat_rotate", ("q", "v"), q, v, (4,), (3,))
-    w, u = q[..., :1], q[..., 1:]
+    return restore(rotate_unchecked(q, v), dtype)
+
+
+@kernel
+def rotate_unchecked(q: Tensor, v: Tensor) -> Tensor:
+    if torch.compiler.is_compiling():  # column by column: one fused vectorised loop
+        q, v = torch.broadcast_tensors(q, torch.nn.functional.pad(v, (1, 0)))
+        w, x, y, z = q.unbind(-1)
+        _, a, b, c = v.unbind(-1)
+        scale = 2.0 / (w * w + x * x + y * y + z * z)
+        tx, ty, tz = (y * c - z * b) * scale, (z * a - x * c) * scale, (x * b - y * a) * scale
+        return torch.stack((a + w * tx + y * tz - z * ty, b + w * ty + z * tx - x * tz,
+                            c + w * tz + x * ty - y * tx), dim=-1)
+    w, u = q.narrow(-1, 0, 1), q.narrow(-1, 1, 3)
     u, v = torch.broadcast_tensors(u, v)  # linalg.cross wants equal ndim; these are views
-    t = torch.linalg.cross(u, v, dim=-1) * (2.0 / (q * q).sum(-1, keepdim=True))
-    return restore(v + w * t + torch.linalg.cross(u, t, dim=-1), dtype)
+    t = torch.linalg.cross(u, v, dim=-1) * (constant("two", 2.0, q) / (q * q).sum(-1, keepdim=True))
+    return v + w * t + torch.linalg.cross(u, t, dim=-1)
 
 
 def quat_slerp(q0: Tensor, q1: Tensor, t: Union[float, Tensor]) -> Tensor:

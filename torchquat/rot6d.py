@@ -6,7 +6,7 @@ import torch
 from torch import Tensor
 
 from ._dispatch import kernel
-from ._math import constant
+from ._math import constant, is_small
 from ._validation import prepare, restore
 from .errors import ShapeError
 
@@ -15,6 +15,8 @@ __all__ = ["rot6d_to_matrix", "matrix_to_rot6d", "rot9d_to_matrix"]
 
 @kernel
 def rot6d_to_matrix_unchecked(x: Tensor) -> Tensor:
+    if not is_small(x, 6):
+        return _rot6d_columnwise(x)
     a1, a2 = x.narrow(-1, 0, 3), x.narrow(-1, 3, 3)
     b1 = a1 / torch.linalg.vector_norm(a1, dim=-1, keepdim=True)  # NaN for a zero first column
     b2 = torch.addcmul(a2, b1, (b1 * a2).sum(-1, keepdim=True), value=-1.0)
@@ -26,6 +28,25 @@ def rot6d_to_matrix_unchecked(x: Tensor) -> Tensor:
     b1 = b1 * valid
     b2 = b2 * (valid / n)
     return torch.stack((b1, b2, torch.linalg.cross(b1, b2, dim=-1)), dim=-1)
+
+
+def _rot6d_columnwise(x: Tensor) -> Tensor:
+    """The same, column by column: fewer passes for large batches, and one fused vectorised loop
+    under ``torch.compile``."""
+    a = x.unbind(-1)
+    a1, a2 = a[:3], a[3:]
+    inv1 = torch.rsqrt(a1[0] * a1[0] + a1[1] * a1[1] + a1[2] * a1[2])
+    b1 = [c * inv1 for c in a1]
+    dot = b1[0] * a2[0] + b1[1] * a2[1] + b1[2] * a2[2]
+    b2 = [c - dot * b for c, b in zip(a2, b1)]
+    n2 = b2[0] * b2[0] + b2[1] * b2[1] + b2[2] * b2[2]
+    noise = (16.0 * torch.finfo(x.dtype).eps) ** 2 * (a2[0] * a2[0] + a2[1] * a2[1] + a2[2] * a2[2])
+    valid = n2 > noise
+    inv2 = torch.where(valid, torch.rsqrt(torch.where(valid, n2, 1.0)), torch.nan)
+    b1 = [torch.where(valid, c, torch.nan) for c in b1]
+    b2 = [c * inv2 for c in b2]
+    b3 = [b1[1] * b2[2] - b1[2] * b2[1], b1[2] * b2[0] - b1[0] * b2[2], b1[0] * b2[1] - b1[1] * b2[0]]
+    return torch.stack([c for row in zip(b1, b2, b3) for c in row], dim=-1).unflatten(-1, (3, 3))
 
 
 def rot6d_to_matrix(x: Tensor) -> Tensor:
