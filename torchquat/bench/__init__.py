@@ -200,7 +200,8 @@ def run(args: argparse.Namespace) -> int:
             header.append(f"Skipped {p.name}: {p.error.splitlines()[0]} -- install the peers with: {INSTALL_HINT}")
     if compiled:
         header.append(f"{_report.COMPILED}: torchquat with use_compiled_kernels(True); compile time is "
-                      "excluded (warm-up calls); not counted in speed-up, which compares eager torchquat.")
+                      "excluded (warm-up calls). speed-up compares eager torchquat; compiled speed-up and "
+                      "compiled / floor the compiled kernels.")
     header.append("speed-up = fastest agreeing torch peer / torchquat (SciPy, on NumPy, is not counted); "
                   "≠ = the peer's output differs from torchquat's beyond "
                   f"{tol:g} (compared as matrices on generic rotations): not counted; err = it raised.")

@@ -55,6 +55,8 @@ def summarize(results: List[dict], torch_peers: Sequence[str]) -> List[dict]:
         best = fastest_peer(idx, op, n, pss, torch_peers)
         floor = idx.get((op, n, "fwd", FLOOR)) if pss == "fwd" else None
         t = mine.get("median_s") if mine else None
+        compiled = idx.get((op, n, pss, COMPILED))
+        c = compiled.get("median_s") if compiled else None
         rows.append({
             "op": op, "n": n, "pass": pss, "torchquat_s": t,
             "fastest_peer": best["impl"] if best else None,
@@ -62,6 +64,9 @@ def summarize(results: List[dict], torch_peers: Sequence[str]) -> List[dict]:
             "speedup": best["median_s"] / t if best and t else None,
             "floor_s": floor["median_s"] if floor else None,
             "over_floor": t / floor["median_s"] if floor and t and floor.get("median_s") else None,
+            "compiled_s": c,
+            "compiled_speedup": best["median_s"] / c if best and c else None,
+            "compiled_over_floor": c / floor["median_s"] if floor and c and floor.get("median_s") else None,
         })
     return rows
 
@@ -85,7 +90,10 @@ def markdown(results: List[dict], labels: Dict[str, str], ns: Sequence[int], pee
     for r in results:
         if r["op"] not in ops:
             ops.append(r["op"])
+    with_compiled = any(r["impl"] == COMPILED for r in results)
     cols = ["op", "pass", TORCHQUAT] + list(peers) + ["fastest peer", "speed-up", "floor", "torchquat / floor"]
+    if with_compiled:
+        cols += ["compiled speed-up", "compiled / floor"]
     lines = list(header)
     for n in ns:
         lines += ["", f"### N = {n:,}", "", "| " + " | ".join(cols) + " |",
@@ -99,6 +107,8 @@ def markdown(results: List[dict], labels: Dict[str, str], ns: Sequence[int], pee
                 cells += [_cell(idx.get((op, n, pss, p))) for p in peers]
                 cells += [s["fastest_peer"] or "—", fmt_ratio(s["speedup"]),
                           fmt_time(s["floor_s"]), fmt_ratio(s["over_floor"])]
+                if with_compiled:
+                    cells += [fmt_ratio(s["compiled_speedup"]), fmt_ratio(s["compiled_over_floor"])]
                 lines.append("| " + " | ".join(cells) + " |")
     lines += [""] + list(footer)
     return "\n".join(lines) + "\n"
