@@ -29,13 +29,15 @@ where per-operation dispatch dominates; larger ones take elementwise paths that 
 over memory. Both give the same results to rounding; the tests run both."""
 
 
-def is_small(x: Tensor, row_numel: int) -> bool:
-    """Whether ``x`` (rows of ``row_numel`` numbers) is a small batch (a shape test, not data).
+def is_small(x: Tensor, row_numel: int, share: float = 1.0) -> bool:
+    """Whether ``x`` (rows of ``row_numel`` numbers) is a small batch (a shape test, not data):
+    at most ``share * SMALL_BATCH_ROWS`` rows (kernels whose table path costs more per row set
+    a smaller share, where their measured crossover is).
 
     Inside a ``torch.compile`` trace the answer is no: inductor fuses elementwise code into one
     loop, and a matmul would split it.
     """
-    return x.numel() <= SMALL_BATCH_ROWS * row_numel and not torch.compiler.is_compiling()
+    return x.numel() <= SMALL_BATCH_ROWS * share * row_numel and not torch.compiler.is_compiling()
 
 
 _CONSTANTS = {}

@@ -92,7 +92,7 @@ def _trig_outer(angles: Tensor, with_one: bool) -> Tensor:
 
 @kernel
 def euler_to_quat_unchecked(angles: Tensor, convention: EulerConvention) -> Tensor:
-    if not is_small(angles, 3):  # column by column: fewer passes; under compile one fused loop
+    if not is_small(angles, 3, share=0.25):  # column by column: fewer passes; under compile one fused loop
         half = [0.5 * a for a in angles.unbind(-1)]
         cs = [(torch.cos(h), torch.sin(h)) for h in half]
         pairs = [u * v for u in cs[0] for v in cs[1]]
@@ -389,7 +389,7 @@ def _angles_columnwise(forms, conv: EulerConvention, eps: float) -> Tensor:
 
 @kernel
 def quat_to_euler_unchecked(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
-    if not is_small(q, 4):
+    if not is_small(q, 4, share=0.25):  # crossover measured near 1000 rows
         abcd_terms, pair_terms, _ = _COLUMNWISE[convention.name]
         abcd = [_combine(q.unbind(-1), terms) for terms in abcd_terms]
         products = [abcd[u] * abcd[v] for u, v in _PAIRS]
@@ -433,7 +433,7 @@ def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Option
 
 @kernel
 def matrix_to_euler_unchecked(R: Tensor, convention: EulerConvention, eps: float) -> Tensor:
-    if not is_small(R, 9):
+    if not is_small(R, 9, share=0.125):  # crossover measured near 500 rows
         entries = R.flatten(-2).unbind(-1)
         return _angles_columnwise([_combine(entries, terms) for terms in _COLUMNWISE[convention.name][2]], convention, eps)
     return _angles_from_forms(_matrix_forms(R, convention), convention, eps)
