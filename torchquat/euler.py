@@ -394,8 +394,14 @@ def quat_to_euler_unchecked(q: Tensor, convention: EulerConvention, eps: float) 
         abcd = [_combine(q.unbind(-1), terms) for terms in abcd_terms]
         products = [abcd[u] * abcd[v] for u, v in _PAIRS]
         forms = [_combine(products, terms) for terms in pair_terms]
-        inverse = 1.0 / forms[13]  # scale-invariant; q = 0 gives NaN
-        return _angles_columnwise([form * inverse for form in forms[:13]], convention, eps)
+        # Every atan2 pair and the lock test are scale-invariant; only q = 0 (all forms 0) must
+        # come out as NaN, not a plausible (0, 0, 0). Eager: one where on the result (13 fewer
+        # passes); compiled: dividing by |abcd|^2 fuses for free, and a where on the result does not.
+        if torch.compiler.is_compiling():
+            inverse = 1.0 / forms[13]
+            return _angles_columnwise([form * inverse for form in forms[:13]], convention, eps)
+        angles = _angles_columnwise(forms, convention, eps)
+        return torch.where((forms[13] == 0).unsqueeze(-1), torch.nan, angles)
     forms = _quat_forms(q, convention)
     # scale-invariant, so any |q| > 0 is fine; q = 0 gives 0 / 0 = NaN, not a plausible angle
     return _angles_from_forms(forms / forms.narrow(-1, 13, 1), convention, eps)
