@@ -69,6 +69,7 @@ def prepare_pair(fn: str, names: Sequence[str], a, b, trailing_a: Sequence[int],
     broadcast, and promote them to one dtype; returns them and the dtype to return in."""
     a, dtype = prepare(a, fn, names[0], trailing_a)
     b, _ = prepare(b, fn, names[1], trailing_b)
-    check_broadcast(fn, names, (a, b), (len(trailing_a), len(trailing_b)))
+    if a.shape[: a.dim() - len(trailing_a)] != b.shape[: b.dim() - len(trailing_b)]:  # (equal: nothing to check)
+        check_broadcast(fn, names, (a, b), (len(trailing_a), len(trailing_b)))
     a, b = common_dtype(a, b)
     return a, b, dtype
