@@ -43,18 +43,19 @@ def is_small(x: Tensor, row_numel: int, share: float = 1.0) -> bool:
 _CONSTANTS = {}
 
 
-def constant(name: str, values, like: Tensor) -> Tensor:
-    """A constant table in ``like``'s dtype and device, built once per (dtype, device).
+def constant(name: str, values, like: Tensor, dtype=None) -> Tensor:
+    """A constant table in ``like``'s dtype (or ``dtype``) and device, built once per (dtype, device).
 
     Inside a ``torch.compile`` trace it is built inline (it becomes a graph constant) rather than
     taken from the cache, so tracing has no side effects.
     """
+    dtype = like.dtype if dtype is None else dtype
     if torch.compiler.is_compiling():
-        return torch.tensor(values, dtype=like.dtype, device=like.device)
-    key = (name, like.dtype, like.device)
+        return torch.tensor(values, dtype=dtype, device=like.device)
+    key = (name, dtype, like.device)
     table = _CONSTANTS.get(key)
     if table is None:
-        table = _CONSTANTS[key] = torch.tensor(values, dtype=like.dtype, device=like.device)
+        table = _CONSTANTS[key] = torch.tensor(values, dtype=dtype, device=like.device)
     return table
 
 

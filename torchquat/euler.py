@@ -80,14 +80,24 @@ _SIGN_TABLES: Dict[str, Tuple[Tuple[int, ...], ...]] = {
 _MATRIX_TABLES = {name: _matrix_table(conv) for name, conv in EULER_CONVENTIONS.items()}
 
 
+# Which of the flattened per-angle factors each product takes: ``(cos, sin)`` of angle n at
+# 2n, 2n + 1; ``(1, cos, sin)`` at 3n, 3n + 1, 3n + 2. Product m multiplies one factor per angle.
+_OUTER_INDEX = {
+    False: [2 * n + ((m >> (2 - n)) & 1) for m in range(8) for n in range(3)],
+    True: [3 * n + (u // 3 ** (2 - n)) % 3 for u in range(27) for n in range(3)],
+}
+
+
 def _trig_outer(angles: Tensor, with_one: bool) -> Tensor:
     """Outer product over the three angles of ``(cos, sin)`` (``with_one``: ``(1, cos, sin)``),
-    flattened: ``(..., 3) -> (..., 8)`` or ``(..., 27)``."""
+    flattened: ``(..., 3) -> (..., 8)`` or ``(..., 27)``. One gather of the factors and two
+    multiplications: fewer dispatches than broadcasting, in both passes."""
     cs = torch.stack((torch.cos(angles), torch.sin(angles)), dim=-1)
     if with_one:
         cs = torch.nn.functional.pad(cs, (1, 0), value=1.0)
-    b1, b2, b3 = cs.unbind(-2)
-    return ((b1.unsqueeze(-1) * b2.unsqueeze(-2)).flatten(-2).unsqueeze(-1) * b3.unsqueeze(-2)).flatten(-2)
+    index = constant(f"outer_index_{with_one}", _OUTER_INDEX[with_one], cs, dtype=torch.long)
+    a, b, c = cs.flatten(-2).index_select(-1, index).unflatten(-1, (-1, 3)).unbind(-1)
+    return a * b * c
 
 
 @kernel
