@@ -4,7 +4,12 @@ One general path serves every convention (SciPy's rule: ``'ZYX'`` intrinsic, ``'
 extrinsic). Quaternion to Euler follows Bernardes and Viollet, "Quaternion to Euler angles
 conversion: A direct, general and computationally efficient method", PLoS ONE 17(11), 2022,
 with SciPy's gimbal-lock rule: within ``eps`` of lock the third angle is 0 and the first
-carries the whole rotation.
+carries the whole rotation. Its angles are rewritten as ``atan2`` of quadratic forms of ``q``,
+which are linear in R's entries, so matrices need no quaternion (see ``_build_forms_tables``).
+
+Each kernel has two forms that give the same results to rounding (tested against each other):
+constant tables contracted by one small matmul for small batches, where every dispatch counts,
+and column-wise formulas for large batches and ``torch.compile`` (one fused loop).
 """
 
 import math
@@ -154,7 +159,7 @@ def euler_to_quat(angles: Tensor, convention: str, degrees: bool = False) -> Ten
 @kernel
 def euler_to_matrix_unchecked(angles: Tensor, convention: EulerConvention) -> Tensor:
     if is_small(angles, 3):
-        # one trilinear form: 6 dispatches for the trig and the outer product, one matmul
+        # one trilinear form: the trig, a gather and two products, one matmul
         R = contract(_trig_outer(angles, with_one=True), "euler_matrix_" + convention.name,
                      _MATRIX_TABLES[convention.name])
         return R.unflatten(-1, (3, 3))
