@@ -6,7 +6,7 @@ import torch
 
 import torchquat as tq
 import torchquat._math as tqmath
-from function_table import ALL, off_kink, same_output, singular_quats
+from function_table import ALL, assert_paths_agree, singular_quats
 
 PATH_DEPENDENT = ["quat_to_matrix", "quat_multiply", "quat_rotate", "matrix_to_quat", "axis_angle_to_quat",
                   "quat_geodesic_distance", "rot6d_to_matrix", "euler_to_quat[ZYZ]", "euler_to_quat[xzy]"] + [
@@ -25,20 +25,7 @@ def test_small_and_large_batch_paths_agree(name, monkeypatch):
         large = fn(*inputs)
         g_large = torch.autograd.grad(large.sum(), inputs)
         monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 4096)
-        if "to_euler" in name:
-            # Next to lock single angles are ill-conditioned (rounding moves them, not the
-            # rotation they make), and exactly at lock the middle angle has a kink whose
-            # subgradient follows the rounding: compare rotations, and gradients off lock.
-            convention = name[-4:-1]
-            assert torch.allclose(tq.euler_to_matrix(small, convention), tq.euler_to_matrix(large, convention), atol=1e-13)
-            assert all(torch.isfinite(a).all() and torch.isfinite(b).all() for a, b in zip(g_small, g_large))
-            if make is singular:
-                continue
-        else:
-            assert same_output(name, small, large, 1e-14)
-        assert all(torch.isfinite(a).all() and torch.isfinite(b).all() for a, b in zip(g_small, g_large))
-        g_small, g_large = off_kink(name, small, g_small, g_large)
-        assert all(torch.allclose(a, b, atol=1e-12) for a, b in zip(g_small, g_large))
+        assert_paths_agree(name, make is singular, small, large, g_small, g_large, atol=1e-14, grad_atol=1e-12)
 
 
 def test_a_batch_above_the_threshold_matches_one_below():

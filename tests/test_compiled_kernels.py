@@ -4,7 +4,7 @@ import pytest
 import torch
 
 import torchquat as tq
-from function_table import ALL, off_kink, same_output
+from function_table import ALL, assert_paths_agree
 
 # One representative per kernel; compiling all 100+ table entries would take minutes.
 # every kernel with a column-wise compiled form, and one of each other kind
@@ -33,19 +33,8 @@ def test_compiled_kernel_matches_eager_with_finite_gradients(name, compiled):
         ref = fn(*eager_inputs)
         ref_grads = torch.autograd.grad(ref.sum(), eager_inputs)
         tq.use_compiled_kernels(True)
-        if "to_euler" in name:
-            # the compiled kernel is the column-wise form, eager small batches the table form:
-            # compare as test_batch_size_paths does (rotations; gradients off lock)
-            convention = name[-4:-1]
-            assert torch.allclose(tq.euler_to_matrix(out, convention), tq.euler_to_matrix(ref, convention), atol=1e-13)
-            assert all(torch.isfinite(g).all() for g in grads)
-            if make is singular:
-                continue
-        else:
-            assert same_output(name, out.nan_to_num(7.0), ref.nan_to_num(7.0), 1e-12)
-        assert all(torch.isfinite(g).all() for g in grads)
-        grads, ref_grads = off_kink(name, ref, grads, ref_grads)
-        assert all(torch.isfinite(g).all() and torch.allclose(g, r, atol=1e-9, rtol=1e-9) for g, r in zip(grads, ref_grads))
+        # the compiled kernels are the column-wise forms, eager small batches the table forms
+        assert_paths_agree(name, make is singular, out, ref, grads, ref_grads, atol=1e-12, grad_atol=1e-9, grad_rtol=1e-9)
 
 
 def test_vmap_and_user_compile_trace_the_eager_kernel(compiled):
