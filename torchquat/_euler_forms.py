@@ -15,7 +15,7 @@ import math
 import torch
 from torch import Tensor
 
-from ._math import constant, contract, safe_sqrt
+from ._math import constant, contract, safe_sqrt, sparse_columns
 from .conventions import EULER_CONVENTIONS, EulerConvention
 from .matrix import _SHEPPERD, _SHEPPERD_OFFSET, _SHEPPERD_ROWS
 
@@ -166,16 +166,6 @@ def angles_from_forms(forms: Tensor, conv: EulerConvention, eps: float) -> Tenso
     return torch.stack((t1, middle, torch.where(locked, constant("zero", 0.0, forms), t3)), dim=-1)
 
 
-def _sparse_columns(table, offset=None):
-    """Each column of ``table`` as a tuple of its non-zero ``(row, coefficient)`` terms (and the
-    offset), so the column-wise path traces a few terms per form instead of a dense loop."""
-    columns = []
-    for k in range(len(table[0])):
-        terms = tuple((r, row[k]) for r, row in enumerate(table) if row[k] != 0)
-        columns.append((terms, offset[k] if offset else 0.0))
-    return tuple(columns)
-
-
 PAIRS = tuple((i, j) for i in range(4) for j in range(i, 4))  # the 10 distinct products u v
 
 
@@ -187,20 +177,10 @@ def _columnwise_tables(name: str):
     for p, (u, v) in enumerate(PAIRS):
         for k in range(len(abcd_table[0])):  # M[u][v] + M[v][u] multiplies u v (u != v)
             pair_table[p][k] = abcd_table[4 * u + v][k] * (1 if u == v else 2)
-    return _sparse_columns(ABCD[name][0]), _sparse_columns(pair_table), _sparse_columns(matrix_table, offset)
+    return sparse_columns(ABCD[name][0]), sparse_columns(pair_table), sparse_columns(matrix_table, offset)
 
 
 COLUMNWISE = {name: _columnwise_tables(name) for name in EULER_CONVENTIONS}
-
-
-def combine(columns, terms):
-    total = None
-    for r, k in terms[0]:
-        term = columns[r] if k == 1 else (-columns[r] if k == -1 else columns[r] * k)
-        total = term if total is None else total + term
-    if total is None:  # an unused form (intrinsic conventions' lock columns)
-        return terms[1]
-    return total + terms[1] if terms[1] else total
 
 
 def angles_columnwise(forms, conv: EulerConvention, eps: float) -> Tensor:

@@ -59,15 +59,23 @@ def constant(name: str, values, like: Tensor, dtype=None) -> Tensor:
     return table
 
 
-def _combination(columns, coefficients):
-    """``sum_r coefficients[r] * columns[r]`` with Python-number coefficients, skipping zeros."""
-    out = None
-    for column, k in zip(columns, coefficients):
-        if k == 0:
-            continue
-        term = column if k in (1, -1) else column * k
-        out = (term if k != -1 else -term) if out is None else (out + term if k != -1 else out - term)
-    return out if out is not None else torch.zeros_like(columns[0])
+def sparse_columns(table, offset=None):
+    """Each column of ``table`` (a matrix, or a vector: one column) as its non-zero
+    ``(row, coefficient)`` terms and its offset, for :func:`combine`."""
+    if not isinstance(table[0], (list, tuple)):
+        table = [[v] for v in table]
+    return tuple((tuple((r, row[k]) for r, row in enumerate(table) if row[k] != 0), offset[k] if offset else 0.0)
+                 for k in range(len(table[0])))
+
+
+def combine(columns, terms):
+    """``sum_r k_r * columns[r] + offset`` for one :func:`sparse_columns` entry, with the
+    coefficients as Python numbers (literals in a compiled graph)."""
+    total = torch.zeros_like(columns[0]) if not terms[0] else None  # (a column of zeros)
+    for r, k in terms[0]:
+        term = columns[r] if k == 1 else (-columns[r] if k == -1 else columns[r] * k)
+        total = term if total is None else total + term
+    return total + terms[1] if terms[1] else total
 
 
 def contract(x: Tensor, name: str, values) -> Tensor:
@@ -80,7 +88,6 @@ def contract(x: Tensor, name: str, values) -> Tensor:
     """
     if torch.compiler.is_compiling():
         columns = x.unbind(-1)
-        if not isinstance(values[0], (list, tuple)):
-            return _combination(columns, values)
-        return torch.stack([_combination(columns, [row[c] for row in values]) for c in range(len(values[0]))], dim=-1)
+        out = [combine(columns, terms) for terms in sparse_columns(values)]
+        return out[0] if not isinstance(values[0], (list, tuple)) else torch.stack(out, dim=-1)
     return x @ constant(name, values, x)

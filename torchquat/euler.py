@@ -19,9 +19,8 @@ import torch
 from torch import Tensor
 
 from ._dispatch import kernel
-from ._euler_forms import (COLUMNWISE, PAIRS, angles_columnwise, angles_from_forms, combine, lock, matrix_forms,
-                           quat_forms)
-from ._math import constant, contract, is_small
+from ._euler_forms import COLUMNWISE, PAIRS, angles_columnwise, angles_from_forms, lock, matrix_forms, quat_forms
+from ._math import combine, constant, contract, is_small
 from ._validation import prepare, restore
 from .conventions import EULER_CONVENTIONS, EulerConvention, gimbal_eps, parse_convention
 from .matrix import quat_to_matrix_unchecked
