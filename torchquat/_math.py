@@ -71,10 +71,12 @@ def sparse_columns(table, offset=None):
 def combine(columns, terms):
     """``sum_r k_r * columns[r] + offset`` for one :func:`sparse_columns` entry, with the
     coefficients as Python numbers (literals in a compiled graph)."""
-    total = torch.zeros_like(columns[0]) if not terms[0] else None  # (a column of zeros)
-    for r, k in terms[0]:
-        term = columns[r] if k == 1 else (-columns[r] if k == -1 else columns[r] * k)
-        total = term if total is None else total + term
+    if not terms[0]:
+        return torch.zeros_like(columns[0]) + terms[1]
+    (first, k), rest = terms[0][0], terms[0][1:]
+    total = columns[first] if k == 1 else columns[first] * k
+    for r, k in rest:  # one pass per term: add and sub take the coefficient as alpha
+        total = torch.sub(total, columns[r], alpha=-k) if k < 0 else torch.add(total, columns[r], alpha=k)
     return total + terms[1] if terms[1] else total
 
 

@@ -20,7 +20,7 @@ from torch import Tensor
 
 from ._dispatch import kernel
 from ._euler_forms import COLUMNWISE, PAIRS, angles_columnwise, angles_from_forms, lock, matrix_forms, quat_forms
-from ._math import combine, constant, contract, is_small
+from ._math import combine, constant, contract, is_small, sparse_columns
 from ._validation import prepare, restore
 from .conventions import EULER_CONVENTIONS, EulerConvention, gimbal_eps, parse_convention
 from .matrix import quat_to_matrix_unchecked
@@ -84,6 +84,7 @@ _SIGN_TABLES: Dict[str, Tuple[Tuple[int, ...], ...]] = {
     name: _sign_table(conv) for name, conv in EULER_CONVENTIONS.items()
 }
 _MATRIX_TABLES = {name: _matrix_table(conv) for name, conv in EULER_CONVENTIONS.items()}
+_SIGN_COLUMNS = {name: sparse_columns(table) for name, table in _SIGN_TABLES.items()}  # (column-wise form)
 
 
 # Which of the flattened per-angle factors each product takes: ``(cos, sin)`` of angle n at
@@ -113,9 +114,8 @@ def euler_to_quat_unchecked(angles: Tensor, convention: EulerConvention) -> Tens
         cs = [(torch.cos(h), torch.sin(h)) for h in half]
         pairs = [u * v for u in cs[0] for v in cs[1]]
         products = [p * w for p in pairs for w in cs[2]]  # index 4 m1 + 2 m2 + m3, as the table's rows
-        table = _SIGN_TABLES[convention.name]
-        q = [sum(products[m] * table[m][k] for m in range(8) if table[m][k]) for k in range(4)]
-        sign = torch.where(q[0] < 0, -1.0, 1.0)
+        q = [combine(products, terms) for terms in _SIGN_COLUMNS[convention.name]]
+        sign = torch.copysign(torch.ones_like(q[0]), q[0])  # w >= 0 (a where on w < 0 mispredicts)
         return torch.stack([c * sign for c in q], dim=-1)
     products = _trig_outer(angles * constant("half", 0.5, angles), with_one=False)
     q = contract(products, "euler_signs_" + convention.name, _SIGN_TABLES[convention.name])
