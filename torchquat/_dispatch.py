@@ -68,7 +68,14 @@ def _compiled_for(fn: Callable, static: Tuple) -> Callable:
         # not functools.partial: torch.compile wraps those in one shared frame
         # Inductor's CPU tiling heuristic drops to scalar code (std::atan2 per element, 10-25x
         # slower) when many loads are strided, as the columns of an (N, 4) input are.
-        inductor_options = {"cpp.enable_tiling_heuristics": False} if _backend == "inductor" else None
+        inductor_options = None
+        if _backend == "inductor":
+            inductor_options = {"cpp.enable_tiling_heuristics": False}
+            try:  # training graphs: see _partition.NoSavedMasks (inductor's option is recent)
+                from ._partition import NoSavedMasks
+                inductor_options["custom_partitioner_fn"] = NoSavedMasks()
+            except ImportError:
+                pass
         compiled = _compiled[key] = torch.compile(_fresh_copy(bound, len(_compiled)), dynamic=True, fullgraph=True,
                                                      backend=_backend, options=inductor_options)
     return compiled

@@ -198,7 +198,8 @@ def euler_to_matrix(angles: Tensor, convention: str, degrees: bool = False) -> T
 def quat_to_euler_unchecked(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
     if not is_small(q, 4, share=0.25):  # crossover measured near 1000 rows
         abcd_terms, pair_terms, _ = COLUMNWISE[convention.name]
-        abcd = [combine(q.unbind(-1), terms) for terms in abcd_terms]
+        columns = q.unbind(-1)  # once: under compile each unbind's backward is an (N, 4) buffer of its own
+        abcd = [combine(columns, terms) for terms in abcd_terms]
         products = [abcd[u] * abcd[v] for u, v in PAIRS]
         forms = [combine(products, terms) for terms in pair_terms]
         # Every atan2 pair and the lock test are scale-invariant; only q = 0 (all forms 0) must
