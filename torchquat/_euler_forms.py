@@ -153,8 +153,11 @@ def angles_from_forms(forms: Tensor, conv: EulerConvention, eps: float) -> Tenso
         t1_locked = torch.where(near_zero, t1_lock_zero, t1_lock_pi)
     t1 = torch.where(locked.unsqueeze(-1), t1_locked, t1)
     double = torch.where(near_zero, double_zero, double_pi)
-    # The (Y, X) blocks made contiguous first: a strided atan2 is not vectorised (15x slower).
-    y, x = torch.stack((t1, middle, double), dim=-1).movedim(-2, 0).contiguous()
+    pairs = torch.stack((t1, middle, double), dim=-1)  # (..., 2, 3): the Y row, the X row
+    if pairs.numel() > 96:  # a strided atan2 is not vectorised (15x slower): Y and X contiguous first
+        y, x = pairs.movedim(-2, 0).contiguous()
+    else:  # (for a few rows the copy costs more than it saves, in both passes)
+        y, x = pairs.unbind(-2)
     t1, middle, double = torch.atan2(y, x).unbind(-1)
     # t3 = D - t1 (middle near 0) or D + t1 (near pi), times the Tait-Bryan sign, in [-pi, pi]
     tb = forms_tables(conv.name)[3]
