@@ -23,7 +23,8 @@ FLOOR_DEFINITION = (
     "of the op's output shape: when the inputs are no larger than the output, `out.copy_(src)` with "
     "`src` a preallocated tensor of the output's shape (reads and writes the output's size); when "
     "they are larger, `torch.sum(P, dim=0, out=out)` with `P` of shape (k, N, output width), "
-    "k = ceil(input width / output width) (reads at least the inputs' size, writes the output)"
+    "k = ceil(input width / output width) (reads at least the inputs' size, writes the output); "
+    "the fastest of three fresh preallocations"
 )
 
 
