@@ -195,22 +195,31 @@ def angles_columnwise(forms, conv: EulerConvention, eps: float) -> Tensor:
     f = forms
     two_h = safe_sqrt(f[0] * f[0] + f[1] * f[1])
     ab2, cd2 = f[10], f[11]
-    # Which double angle (middle near 0 or near pi) is a coin toss per row: a `where` on it
-    # mispredicts a branch per element in eager (4 ms per 1e6, 6x a lerp), so choose with lerp,
-    # whose weights 0 and 1 return either end exactly.
-    near_zero = (ab2 >= cd2).to(ab2.dtype)
+    near_zero = ab2 >= cd2
+    tb = forms_tables(conv.name)[3]
+    if torch.compiler.is_compiling():  # (inductor's where is a branch-free blend)
+        def pick(if_near_zero, if_near_pi):
+            return torch.where(near_zero, if_near_zero, if_near_pi)
+        step = torch.where(near_zero, -float(tb), float(tb))
+    else:
+        # Which double angle (middle near 0 or near pi) is a coin toss per row: an eager `where`
+        # on it mispredicts a branch per element (4 ms per 1e6, 6x a lerp), so choose with lerp,
+        # whose weights 0 and 1 return either end exactly.
+        weight = near_zero.to(ab2.dtype)
+
+        def pick(if_near_zero, if_near_pi):
+            return torch.lerp(if_near_pi, if_near_zero, weight)
+        step = weight * (-2.0 * tb) + tb
     locked = two_h <= torch.maximum(ab2, cd2) * (2.0 * math.tan(eps / 2.0))
     y1, x1 = f[0], f[1]
     if conv.intrinsic:
         y1, x1 = torch.where(locked, 0.0, y1), torch.where(locked, 1.0, x1)
     else:
-        y1 = torch.where(locked, torch.lerp(f[8], f[6], near_zero), y1)
-        x1 = torch.where(locked, torch.lerp(f[9], f[7], near_zero), x1)
+        y1, x1 = torch.where(locked, pick(f[6], f[8]), y1), torch.where(locked, pick(f[7], f[9]), x1)
     t1 = torch.atan2(y1, x1)
     middle = torch.atan2(two_h, f[12]) if conv.symmetric else torch.atan2(f[12], two_h)
-    double = torch.atan2(torch.lerp(f[4], f[2], near_zero), torch.lerp(f[5], f[3], near_zero))
-    tb = forms_tables(conv.name)[3]
-    t3 = torch.addcmul(double, t1, near_zero * (-2.0 * tb) + tb)  # D - tb t1 near 0, D + tb t1 near pi
+    double = torch.atan2(pick(f[2], f[4]), pick(f[3], f[5]))
+    t3 = torch.addcmul(double, t1, step)  # D - tb t1 near 0, D + tb t1 near pi
     t3 = t3 - torch.round(t3 * (0.5 / math.pi)) * (2.0 * math.pi)  # into [-pi, pi], branch-free
     if conv.intrinsic:
         return torch.stack((t3, middle, t1), dim=-1)

@@ -71,12 +71,13 @@ def sparse_columns(table, offset=None):
 def combine(columns, terms):
     """``sum_r k_r * columns[r] + offset`` for one :func:`sparse_columns` entry, with the
     coefficients as Python numbers (literals in a compiled graph)."""
-    if not terms[0]:
-        return torch.zeros_like(columns[0]) + terms[1]
-    (first, k), rest = terms[0][0], terms[0][1:]
-    total = columns[first] if k == 1 else columns[first] * k
-    for r, k in rest:  # one pass per term: add and sub take the coefficient as alpha
-        total = torch.sub(total, columns[r], alpha=-k) if k < 0 else torch.add(total, columns[r], alpha=k)
+    if terms[0]:
+        (first, k), rest = terms[0][0], terms[0][1:]
+        total = columns[first] if k == 1 else columns[first] * k
+        for r, k in rest:  # one pass per term: add and sub take the coefficient as alpha
+            total = torch.sub(total, columns[r], alpha=-k) if k < 0 else torch.add(total, columns[r], alpha=k)
+    else:
+        total = torch.zeros_like(columns[0])
     return total + terms[1] if terms[1] else total
 
 
