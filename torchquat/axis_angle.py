@@ -84,7 +84,7 @@ def _axis_angle_to_quat_columnwise(v: Tensor) -> Tensor:
     half = 0.5 * theta
     cos_half = torch.where(small, 1.0 - 0.125 * theta2, torch.cos(half))
     sinc_half = torch.where(small, 0.5 - theta2 / 48.0, torch.sin(half) / theta)
-    sign = torch.where(cos_half < 0, -1.0, 1.0)
+    sign = torch.copysign(torch.ones_like(cos_half), cos_half)  # (an eager where on a random sign mispredicts)
     s = sinc_half * sign
     return torch.stack((cos_half * sign, x * s, y * s, z * s), dim=-1)
 
