@@ -5,9 +5,9 @@ computationally efficient method", PLoS ONE 17(11), 2022, compute every conventi
 permuted quaternion ``(a, b, c, d)``. Here each of their angles is one ``atan2`` of two quadratic
 forms in ``(a, b, c, d)`` (see :func:`_build_forms_tables`). Quadratic forms of ``q`` are linear
 in ``q q^T`` and, for a unit ``q``, in R's entries, so one table per convention serves both
-inputs. Two evaluations give the same angles to rounding: :func:`angles_from_forms` (few
-dispatches: small batches) and :func:`angles_columnwise` (1-D columns: large batches and
-``torch.compile``).
+inputs. Two evaluations give the same angles to rounding: ``torchquat._euler_small`` (few
+dispatches and a closed-form backward: small batches) and :func:`angles_columnwise` (1-D
+columns: large batches and ``torch.compile``).
 """
 
 import math
@@ -15,7 +15,7 @@ import math
 import torch
 from torch import Tensor
 
-from ._math import constant, contract, safe_sqrt, sparse_columns
+from ._math import safe_sqrt, sparse_columns
 from .conventions import EULER_CONVENTIONS, EulerConvention
 from .matrix import _SHEPPERD, _SHEPPERD_OFFSET, _SHEPPERD_ROWS
 
@@ -60,9 +60,10 @@ def _build_forms_tables(name: str):
     ill-conditioned but their sum (middle near 0) or difference (near pi) is not, so ``t3`` is
     formed as ``D -+ t1`` from the dominant double angle ``D``: the returned angles then
     reproduce the rotation to rounding right up to the lock. Quadratic forms of ``q`` are
-    linear in ``R``, so a matrix needs no quaternion and no square root. The lock test
-    ``|(c, d)| <= tan(eps/2) |(a, b)|`` (or the reverse) is ``h <= tan(eps/2) max(|ab|^2, |cd|^2)``:
-    no cancellation near lock, so an exact lock is caught in float32 too.
+    linear in ``R``, so a matrix needs no quaternion and no square root. The lock test (middle
+    angle within ``eps`` of 0 or pi) is ``sin(t2) <= sin(eps)``, that is
+    ``2h <= sin(eps) (|ab|^2 + |cd|^2)``: no cancellation near lock, so an exact lock is caught
+    in float32 too.
 
     Columns: 0-1 ``t1`` (times 2, so the pair's norm is ``2h``); 2-3 and 4-5 the double angles
     ``2 atan2(b, a)`` and ``2 atan2(d, c)`` (times the Tait-Bryan sign); 6-7 and 8-9 ``t1`` at
@@ -118,59 +119,6 @@ def forms_tables(name: str):
     return _FORMS_TABLES[name]
 
 
-def quat_forms(q: Tensor, conv: EulerConvention) -> Tensor:
-    return contract((q.unsqueeze(-1) * q.unsqueeze(-2)).flatten(-2), "euler_q_forms_" + conv.name,
-                    forms_tables(conv.name)[0])
-
-
-def matrix_forms(R: Tensor, conv: EulerConvention) -> Tensor:
-    _, table, offset = forms_tables(conv.name)[:3]
-    return (contract(R.flatten(-2), "euler_R_forms_" + conv.name, table)
-            + constant("euler_R_offset_" + conv.name, offset, R))
-
-
-def lock(forms: Tensor, eps: float):
-    """``2h`` and the lock mask ``2h <= 2 tan(eps/2) max(|ab|^2, |cd|^2)``, from the forms (the
-    one test every function uses)."""
-    two_h = torch.linalg.vector_norm(forms.narrow(-1, 0, 2), dim=-1)  # its gradient is 0 at h = 0
-    scale = 2.0 * math.tan(eps / 2.0)
-    if not torch.compiler.is_compiling():  # (under compile eps may be symbolic: no cache key)
-        scale = constant(f"lock_scale_{eps!r}", scale, forms)
-    return two_h, two_h <= forms.narrow(-1, 10, 2).amax(-1) * scale
-
-
-def angles_from_forms(forms: Tensor, conv: EulerConvention, eps: float) -> Tensor:
-    two_h, locked = lock(forms, eps)
-    t1, double_zero, double_pi, t1_lock_zero, t1_lock_pi = forms.narrow(-1, 0, 10).unflatten(-1, (5, 2)).unbind(-2)
-    other = forms.select(-1, 12)
-    middle = torch.stack((two_h, other) if conv.symmetric else (other, two_h), dim=-1)
-    near_zero = (forms.select(-1, 10) >= forms.select(-1, 11)).unsqueeze(-1)
-    # Choose each (Y, X) pair *before* atan2, so a discarded pair (which is (0, 0) at an exact
-    # lock, where atan2's gradient is NaN) never reaches it.
-    if conv.intrinsic:
-        t1_locked = constant("atan2_zero", [0.0, 1.0], forms)
-    else:
-        t1_locked = torch.where(near_zero, t1_lock_zero, t1_lock_pi)
-    t1 = torch.where(locked.unsqueeze(-1), t1_locked, t1)
-    double = torch.where(near_zero, double_zero, double_pi)
-    pairs = torch.stack((t1, middle, double), dim=-1)  # (..., 2, 3): the Y row, the X row
-    if pairs.numel() > 96:  # a strided atan2 is not vectorised (15x slower): Y and X contiguous first
-        y, x = pairs.movedim(-2, 0).contiguous()
-    else:  # (for a few rows the copy costs more than it saves, in both passes)
-        y, x = pairs.unbind(-2)
-    t1, middle, double = torch.atan2(y, x).unbind(-1)
-    # t3 = D - t1 (middle near 0) or D + t1 (near pi), times the Tait-Bryan sign, in [-pi, pi]
-    tb = forms_tables(conv.name)[3]
-    step = torch.where(near_zero.squeeze(-1), constant(f"t3_near_zero{tb}", -float(tb), forms),
-                       constant(f"t3_near_pi{tb}", float(tb), forms))
-    pi = constant("pi", math.pi, forms)
-    t3 = torch.remainder(torch.addcmul(double + pi, t1, step), constant("two_pi", 2.0 * math.pi, forms)) - pi
-    if conv.intrinsic:  # the letters' third angle is t1, exactly atan2(0, 1) = 0 at lock
-        return torch.stack((t3, middle, t1), dim=-1)
-    # at lock t3 = D - D is 0 only to rounding; SciPy's rule makes it exactly 0
-    return torch.stack((t1, middle, torch.where(locked, constant("zero", 0.0, forms), t3)), dim=-1)
-
-
 PAIRS = tuple((i, j) for i in range(4) for j in range(i, 4))  # the 10 distinct products u v
 
 
@@ -189,7 +137,7 @@ COLUMNWISE = {name: _columnwise_tables(name) for name in EULER_CONVENTIONS}
 
 
 def angles_columnwise(forms, conv: EulerConvention, eps: float) -> Tensor:
-    """The same angles as :func:`angles_from_forms`, written column by column with the tables'
+    """The same angles as ``torchquat._euler_small``, written column by column with the tables'
     numbers as literals: for large batches (a handful of passes over 1-D columns instead of
     strided pair tensors) and for ``torch.compile``, which fuses it into one vectorised loop."""
     f = forms
@@ -210,7 +158,7 @@ def angles_columnwise(forms, conv: EulerConvention, eps: float) -> Tensor:
         def pick(if_near_zero, if_near_pi):
             return torch.lerp(if_near_pi, if_near_zero, weight)
         step = weight * (-2.0 * tb) + tb
-    locked = two_h <= torch.maximum(ab2, cd2) * (2.0 * math.tan(eps / 2.0))
+    locked = two_h <= (ab2 + cd2) * math.sin(eps)  # sin(middle) <= sin(eps), as the small path
     y1, x1 = f[0], f[1]
     if conv.intrinsic:
         y1, x1 = torch.where(locked, 0.0, y1), torch.where(locked, 1.0, x1)

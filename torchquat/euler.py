@@ -18,8 +18,11 @@ from typing import Dict, Optional, Tuple
 import torch
 from torch import Tensor
 
+from . import _closed_form as closed_form
+from ._closed_form import jacobian_rule
 from ._dispatch import kernel
-from ._euler_forms import COLUMNWISE, PAIRS, angles_columnwise, angles_from_forms, lock, matrix_forms, quat_forms
+from ._euler_forms import COLUMNWISE, PAIRS, angles_columnwise
+from ._euler_small import euler_angles, lock, matrix_layout, quat_layout
 from ._math import combine, constant, contract, is_small, sparse_columns
 from ._validation import prepare, restore
 from .conventions import EULER_CONVENTIONS, EulerConvention, gimbal_eps, parse_convention
@@ -95,16 +98,78 @@ _OUTER_INDEX = {
 }
 
 
-def _trig_outer(angles: Tensor, with_one: bool) -> Tensor:
-    """Outer product over the three angles of ``(cos, sin)`` (``with_one``: ``(1, cos, sin)``),
-    flattened: ``(..., 3) -> (..., 8)`` or ``(..., 27)``. One gather of the factors and two
-    multiplications: fewer dispatches than broadcasting, in both passes."""
-    cs = torch.stack((torch.cos(angles), torch.sin(angles)), dim=-1)
-    if with_one:
-        cs = torch.nn.functional.pad(cs, (1, 0), value=1.0)
-    index = constant(f"outer_index_{with_one}", _OUTER_INDEX[with_one], cs, dtype=torch.long)
-    a, b, c = cs.flatten(-2).index_select(-1, index).unflatten(-1, (-1, 3)).unbind(-1)
+def _outer(factors: Tensor, with_one: bool) -> Tensor:
+    """The outer product of the three angles' factor rows ``(..., 3, k) -> (..., k^3)``, flattened:
+    one gather of the factors and two multiplications (fewer dispatches than broadcasting)."""
+    index = constant(f"outer_index_{with_one}", _OUTER_INDEX[with_one], factors, dtype=torch.long)
+    a, b, c = factors.flatten(-2).index_select(-1, index).unflatten(-1, (-1, 3)).unbind(-1)
     return a * b * c
+
+
+def _trig_factors(angles: Tensor, with_one: bool) -> Tensor:
+    """``(cos, sin)`` of each angle (``with_one``: ``(1, cos, sin)``): ``(..., 3) -> (..., 3, k)``."""
+    cs = torch.stack((torch.cos(angles), torch.sin(angles)), dim=-1)
+    return torch.nn.functional.pad(cs, (1, 0), value=1.0) if with_one else cs
+
+
+def _trig_outer(angles: Tensor, with_one: bool) -> Tensor:
+    """Outer product over the three angles of their trig factors: ``(..., 3) -> (..., 8)`` or ``(..., 27)``."""
+    return _outer(_trig_factors(angles, with_one), with_one)
+
+
+# Each angle's factor row and its derivative side by side: (cos, sin) -> (cos, sin, -sin, cos) and
+# (1, cos, sin) -> (1, cos, sin, 0, -sin, cos), a gather and a sign (times the angle's scale).
+_WITH_DERIVATIVE_ORDER = {False: (0, 1, 1, 0), True: (0, 1, 2, 0, 2, 1)}
+_WITH_DERIVATIVE_SIGN = {False: (1.0, 1.0, -1.0, 1.0), True: (1.0, 1.0, 1.0, 0.0, -1.0, 1.0)}
+
+
+def _slot_index(with_one: bool):
+    """Gather index for :func:`_outer` over four slots: slot 0 takes every angle's factors, slot
+    n + 1 takes angle n's derivatives instead (from rows of 2k: factors, then derivatives)."""
+    k = 3 if with_one else 2
+    index = []
+    for slot in range(4):
+        for flat in _OUTER_INDEX[with_one]:
+            n, j = divmod(flat, k)
+            index.append(2 * k * n + j + (k if n == slot - 1 else 0))
+    return index
+
+
+_SLOT_INDEX = {with_one: _slot_index(with_one) for with_one in (False, True)}
+
+
+def _trig_outer_with_derivatives(angles: Tensor, with_one: bool, scale: float) -> Tensor:
+    """:func:`_trig_outer` of ``scale * angles`` (slot 0) and its derivatives with respect to each
+    angle (slots 1-3): ``(..., 3) -> (..., 4, 8 or 27)``. A trilinear form's derivative in one
+    angle is the same product with that angle's factors differentiated, so one outer product
+    gives the values and the Jacobian."""
+    factors = _trig_factors(angles * constant("half", 0.5, angles) if scale == 0.5 else angles, with_one)
+    order = constant(f"with_derivative_order_{with_one}", _WITH_DERIVATIVE_ORDER[with_one], factors, dtype=torch.long)
+    k = factors.shape[-1]  # the derivatives (the second k numbers) carry the chain rule's scale
+    sign = constant(f"with_derivative_sign_{with_one}_{scale!r}",
+                    [v * (scale if j >= k else 1.0) for j, v in enumerate(_WITH_DERIVATIVE_SIGN[with_one])], factors)
+    rows = factors.index_select(-1, order) * sign
+    index = constant(f"slot_index_{with_one}", _SLOT_INDEX[with_one], rows, dtype=torch.long)
+    a, b, c = rows.flatten(-2).index_select(-1, index).unflatten(-1, (4, -1, 3)).unbind(-1)
+    return a * b * c
+
+
+def _euler_to_quat_small(angles: Tensor, convention: EulerConvention) -> Tensor:
+    products = _trig_outer(angles * constant("half", 0.5, angles), with_one=False)
+    q = contract(products, "euler_signs_" + convention.name, _SIGN_TABLES[convention.name])
+    # w >= 0 from w's sign alone (cheaper than standardize_sign; w == 0 exactly would need
+    # a product of float cosines and sines to cancel exactly, and then either sign is right)
+    return q * torch.copysign(constant("one", 1.0, q), q.narrow(-1, 0, 1))
+
+
+def _euler_to_quat_with_jacobian(angles: Tensor, convention: EulerConvention):
+    rows = contract(_trig_outer_with_derivatives(angles, False, 0.5), "euler_signs_" + convention.name,
+                    _SIGN_TABLES[convention.name])  # (..., 4, 4): q, then dq / d angle n
+    rows = rows * torch.copysign(constant("one", 1.0, rows), rows[..., :1, :1])
+    return rows[..., 0, :], rows[..., 1:, :]
+
+
+_EULER_TO_QUAT = jacobian_rule(_euler_to_quat_small, _euler_to_quat_with_jacobian)
 
 
 @kernel
@@ -117,11 +182,7 @@ def euler_to_quat_unchecked(angles: Tensor, convention: EulerConvention) -> Tens
         q = [combine(products, terms) for terms in _SIGN_COLUMNS[convention.name]]
         sign = torch.copysign(torch.ones_like(q[0]), q[0])  # w >= 0 (a where on w < 0 mispredicts)
         return torch.stack([c * sign for c in q], dim=-1)
-    products = _trig_outer(angles * constant("half", 0.5, angles), with_one=False)
-    q = contract(products, "euler_signs_" + convention.name, _SIGN_TABLES[convention.name])
-    # w >= 0 from w's sign alone (cheaper than standardize_sign; w == 0 exactly would need
-    # a product of float cosines and sines to cancel exactly, and then either sign is right)
-    return q * torch.copysign(constant("one", 1.0, q), q.narrow(-1, 0, 1))
+    return closed_form.apply(_EULER_TO_QUAT, angles, convention=convention)
 
 
 def _to_radians(angles: Tensor, degrees: bool) -> Tensor:
@@ -157,13 +218,25 @@ def euler_to_quat(angles: Tensor, convention: str, degrees: bool = False) -> Ten
     return restore(euler_to_quat_unchecked(_to_radians(angles, degrees), convention=conv), dtype)
 
 
+def _euler_to_matrix_small(angles: Tensor, convention: EulerConvention) -> Tensor:
+    # one trilinear form: the trig, a gather and two products, one matmul
+    R = contract(_trig_outer(angles, with_one=True), "euler_matrix_" + convention.name, _MATRIX_TABLES[convention.name])
+    return R.unflatten(-1, (3, 3))
+
+
+def _euler_to_matrix_with_jacobian(angles: Tensor, convention: EulerConvention):
+    rows = contract(_trig_outer_with_derivatives(angles, True, 1.0), "euler_matrix_" + convention.name,
+                    _MATRIX_TABLES[convention.name])  # (..., 4, 9): R, then dR / d angle n
+    return rows[..., 0, :].unflatten(-1, (3, 3)), rows[..., 1:, :]
+
+
+_EULER_TO_MATRIX = jacobian_rule(_euler_to_matrix_small, _euler_to_matrix_with_jacobian)
+
+
 @kernel
 def euler_to_matrix_unchecked(angles: Tensor, convention: EulerConvention) -> Tensor:
     if is_small(angles, 3):
-        # one trilinear form: the trig, a gather and two products, one matmul
-        R = contract(_trig_outer(angles, with_one=True), "euler_matrix_" + convention.name,
-                     _MATRIX_TABLES[convention.name])
-        return R.unflatten(-1, (3, 3))
+        return closed_form.apply(_EULER_TO_MATRIX, angles, convention=convention)
     # large batches: the 27-column outer product costs more memory passes than the quaternion
     return quat_to_matrix_unchecked(euler_to_quat_unchecked(angles, convention=convention))
 
@@ -210,9 +283,7 @@ def quat_to_euler_unchecked(q: Tensor, convention: EulerConvention, eps: float) 
             return angles_columnwise([form * inverse for form in forms[:13]], convention, eps)
         angles = angles_columnwise(forms, convention, eps)
         return torch.where((forms[13] == 0).unsqueeze(-1), torch.nan, angles)
-    forms = quat_forms(q, convention)
-    # scale-invariant, so any |q| > 0 is fine; q = 0 gives 0 / 0 = NaN, not a plausible angle
-    return angles_from_forms(forms / forms.narrow(-1, 13, 1), convention, eps)
+    return euler_angles(q, convention, eps, is_matrix=False)
 
 
 def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Optional[float] = None) -> Tensor:
@@ -247,10 +318,10 @@ def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Option
 
 @kernel
 def matrix_to_euler_unchecked(R: Tensor, convention: EulerConvention, eps: float) -> Tensor:
-    if not is_small(R, 9, share=0.125):  # crossover measured near 500 rows
+    if not is_small(R, 9, share=0.25):  # crossover measured near 1000 rows (with the closed-form backward)
         entries = R.flatten(-2).unbind(-1)
         return angles_columnwise([combine(entries, terms) for terms in COLUMNWISE[convention.name][2]], convention, eps)
-    return angles_from_forms(matrix_forms(R, convention), convention, eps)
+    return euler_angles(R, convention, eps, is_matrix=True)
 
 
 def matrix_to_euler(R: Tensor, convention: str, degrees: bool = False, eps: Optional[float] = None) -> Tensor:
@@ -314,4 +385,4 @@ def euler_gimbal_lock(q: Tensor, convention: str, eps: Optional[float] = None) -
     is_matrix = isinstance(q, Tensor) and q.dim() >= 2 and tuple(q.shape[-2:]) == (3, 3)
     x, _ = prepare(q, "euler_gimbal_lock", "q", (3, 3) if is_matrix else (4,))
     eps = gimbal_eps(x.dtype) if eps is None else float(eps)
-    return lock(matrix_forms(x, conv) if is_matrix else quat_forms(x, conv), eps)[1]
+    return lock(matrix_layout(x, conv) if is_matrix else quat_layout(x, conv), eps)[1]

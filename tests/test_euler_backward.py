@@ -1,0 +1,96 @@
+"""The small-batch kernels' closed-form backward passes (torchquat._closed_form) against autograd
+through the same forward, and the ways around them (double backward, torch.func, forward mode)."""
+
+import pytest
+import torch
+
+import torchquat as tq
+from torchquat import _euler_small
+from torchquat.conventions import EULER_CONVENTIONS
+from torchquat import euler as E
+from rotation_samples import CONVENTIONS, all_singular, cube_rotations, lock_angles, uniform
+
+
+def _samples():
+    # uniform rotations, non-unit quaternions, and the singular sets (identity, half turns,
+    # exact and near gimbal lock for every convention)
+    q = torch.cat([uniform(40, seed=3), all_singular(), tq.matrix_to_quat(cube_rotations())])
+    scale = torch.linspace(0.5, 2.0, q.shape[0], dtype=q.dtype).unsqueeze(-1)
+    return q * scale
+
+
+def _layout(x, conv, is_matrix):
+    return _euler_small.matrix_layout(x, conv) if is_matrix else _euler_small.quat_layout(x, conv)
+
+
+@pytest.mark.parametrize("is_matrix", [False, True], ids=["quat", "matrix"])
+@pytest.mark.parametrize("convention", CONVENTIONS)
+def test_closed_form_backward_matches_autograd_of_the_forward(convention, is_matrix):
+    conv, eps = EULER_CONVENTIONS[convention], 1e-7
+    q = _samples()
+    x = tq.quat_to_matrix(q) if is_matrix else q
+    grad = torch.randn(x.shape[0], 3, dtype=x.dtype, generator=torch.Generator().manual_seed(7))
+    by_autograd = x.clone().requires_grad_()
+    expected = _euler_small.angles(_layout(by_autograd, conv, is_matrix), conv, eps)
+    (g_expected,) = torch.autograd.grad(expected, by_autograd, grad)
+    closed_form = x.clone().requires_grad_()
+    got = _euler_small.euler_angles(closed_form, conv, eps, is_matrix)
+    (g_got,) = torch.autograd.grad(got, closed_form, grad)
+    assert torch.equal(got, expected)
+    assert torch.isfinite(g_got).all()
+    # the gradients near lock reach 1 / sin(eps) = 1e7: compare relative to their size
+    assert ((g_got - g_expected).abs() / (1.0 + g_expected.abs())).max() < 1e-12
+
+
+def test_the_public_functions_record_one_backward_node():
+    q = tq.random_quat(3, generator=torch.Generator().manual_seed(0), dtype=torch.float64).requires_grad_()
+    assert type(tq.quat_to_euler(q, "ZYX").grad_fn).__name__ == "_ClosedFormBackward"
+    assert type(tq.matrix_to_euler(tq.quat_to_matrix(q), "xyx").grad_fn).__name__ == "_ClosedFormBackward"
+
+
+@pytest.mark.parametrize("convention", ["ZYX", "xyz", "ZXZ", "yzy"])
+def test_double_backward_is_exact(convention):
+    q = uniform(4, seed=5).requires_grad_()
+    assert torch.autograd.gradgradcheck(lambda x: tq.quat_to_euler(x, convention), (q,))
+    R = tq.quat_to_matrix(uniform(4, seed=6)).requires_grad_()
+    assert torch.autograd.gradgradcheck(lambda x: tq.matrix_to_euler(x, convention), (R,))
+
+
+def test_torch_func_and_forward_mode_take_the_plain_forward():
+    q = uniform(3, seed=8)
+    jac_rev = torch.func.vmap(torch.func.jacrev(lambda x: tq.quat_to_euler(x, "ZYX")))(q)
+    jac_fwd = torch.func.vmap(torch.func.jacfwd(lambda x: tq.quat_to_euler(x, "ZYX")))(q)
+    assert torch.allclose(jac_rev, jac_fwd, atol=1e-12)
+    rows = []
+    for i in range(3):
+        x = q[i].clone().requires_grad_()
+        rows.append(torch.stack([torch.autograd.grad(tq.quat_to_euler(x, "ZYX")[k], x)[0] for k in range(3)]))
+    assert torch.allclose(jac_rev, torch.stack(rows), atol=1e-12)
+    import torch.autograd.forward_ad as fwAD
+    tangent = torch.randn(3, 4, dtype=q.dtype, generator=torch.Generator().manual_seed(9))
+    with fwAD.dual_level():
+        out = tq.quat_to_euler(fwAD.make_dual(q.clone().requires_grad_(), tangent), "ZYX")
+        jvp = fwAD.unpack_dual(out).tangent
+    assert torch.allclose(jvp, (jac_rev @ tangent.unsqueeze(-1)).squeeze(-1), atol=1e-12)
+
+
+@pytest.mark.parametrize("target", ["quat", "matrix"])
+@pytest.mark.parametrize("convention", CONVENTIONS)
+def test_euler_to_rotation_jacobians_match_autograd(convention, target):
+    # the forward's Jacobian rows (one outer product with each angle's factors differentiated)
+    conv = EULER_CONVENTIONS[convention]
+    plain, with_jacobian = {"quat": (E._euler_to_quat_small, E._euler_to_quat_with_jacobian),
+                            "matrix": (E._euler_to_matrix_small, E._euler_to_matrix_with_jacobian)}[target]
+    angles = torch.cat([torch.randn(20, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(4)) * 3,
+                        lock_angles(convention)[0]])
+    value, jacobian = with_jacobian(angles, conv)
+    assert torch.equal(value, plain(angles, conv))
+    expected = torch.func.vmap(torch.func.jacrev(lambda a: plain(a, conv)))(angles)  # (n, output..., 3)
+    assert torch.allclose(jacobian, expected.reshape(angles.shape[0], -1, 3).transpose(-1, -2), atol=1e-14, rtol=0)
+    x = angles.clone().requires_grad_()
+    out = {"quat": tq.euler_to_quat, "matrix": tq.euler_to_matrix}[target](x, convention)
+    assert type(out.grad_fn).__name__ == "_ClosedFormBackward"
+    grad = torch.randn(out.shape, dtype=out.dtype, generator=torch.Generator().manual_seed(5))
+    (g,) = torch.autograd.grad(out, x, grad)
+    expected_g = (expected.reshape(angles.shape[0], -1, 3) * grad.reshape(angles.shape[0], -1, 1)).sum(-2)
+    assert torch.allclose(g, expected_g, atol=1e-13, rtol=0)

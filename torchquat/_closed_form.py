@@ -1,0 +1,83 @@
+"""Closed-form backward passes for the small-batch kernels.
+
+For a few rows every dispatch counts, and autograd's backward runs one node per forward
+operation: a conversion of 15 to 30 operations pays 4 to 6 times its forward again in the
+backward. A :class:`Rule` gives a kernel a backward of a few operations instead: its forward
+saves what the gradient needs (often the rows' Jacobians, computed alongside the values), and its
+backward contracts the incoming gradient with them in one node.
+
+Only first derivatives take the closed form. Asked for a graph of the gradient (double backward),
+the backward differentiates the rule's plain forward by autograd, so higher derivatives stay
+exact. Under ``torch.func`` transforms and forward-mode AD, which a custom backward does not
+serve, the plain forward runs instead.
+"""
+
+from typing import Callable, NamedTuple
+
+import torch
+from torch import Tensor
+
+
+class Rule(NamedTuple):
+    """``plain(*inputs, **options)``: the forward, differentiable by autograd;
+    ``forward(*inputs, **options) -> (output, saved tensors)``: the same output, and what the
+    backward needs; ``backward(grad, inputs, saved, **options) -> gradients`` (one per input, in
+    each input's broadcast batch shape)."""
+
+    plain: Callable
+    forward: Callable
+    backward: Callable
+
+
+def jacobian_rule(plain: Callable, with_jacobian: Callable) -> Rule:
+    """A :class:`Rule` for a one-input row-wise kernel whose ``with_jacobian(x, **options)``
+    returns the output and each row's Jacobian, shaped ``(..., x's row size, output's row size)``."""
+
+    def forward(x, **options):
+        y, jacobian = with_jacobian(x, **options)
+        return y, (jacobian,)
+
+    def backward(grad, inputs, saved, **options):
+        (jacobian,) = saved  # (a broadcast product and sum: cheaper than a batched matmul for few rows)
+        g = grad.reshape(jacobian.shape[:-2] + (1, jacobian.shape[-1]))
+        return ((jacobian * g).sum(-1).view(inputs[0].shape),)
+
+    return Rule(plain, forward, backward)
+
+
+def _closed_form_applies(inputs) -> bool:
+    return (torch.is_grad_enabled() and any(x.requires_grad for x in inputs)
+            and not torch._C._are_functorch_transforms_active()
+            and getattr(torch.autograd.forward_ad, "_current_level", -1) < 0)
+
+
+class _ClosedForm(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, rule: Rule, options: dict, *inputs: Tensor):
+        output, saved = rule.forward(*inputs, **options)
+        ctx.rule, ctx.options, ctx.n_inputs = rule, options, len(inputs)
+        ctx.save_for_backward(*inputs, *saved)
+        return output
+
+    @staticmethod
+    def backward(ctx, grad: Tensor):
+        tensors = ctx.saved_tensors
+        inputs, saved = tensors[:ctx.n_inputs], tensors[ctx.n_inputs:]
+        wanted = ctx.needs_input_grad[2:]
+        if torch.is_grad_enabled():  # a graph of the gradient was asked for: differentiate the plain forward
+            output = ctx.rule.plain(*inputs, **ctx.options)
+            targets = [x for x, w in zip(inputs, wanted) if w]
+            found = iter(torch.autograd.grad(output, targets, grad, create_graph=True, allow_unused=True))
+            return (None, None, *(next(found) if w else None for w in wanted))
+        grads = ctx.rule.backward(grad, inputs, saved, **ctx.options)
+        result = [None, None]
+        for g, x, w in zip(grads, inputs, wanted):  # broadcast inputs get their gradient summed back
+            result.append((g if g.shape == x.shape else g.sum_to_size(x.shape)) if w else None)
+        return tuple(result)
+
+
+def apply(rule: Rule, *inputs: Tensor, **options):
+    """``rule``'s output with its closed-form backward when autograd records, else ``rule.plain``."""
+    if _closed_form_applies(inputs):
+        return _ClosedForm.apply(rule, options, *inputs)
+    return rule.plain(*inputs, **options)
