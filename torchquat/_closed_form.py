@@ -46,9 +46,11 @@ def jacobian_rule(plain: Callable, with_jacobian: Callable) -> Rule:
 
 
 def _closed_form_applies(inputs) -> bool:
-    return (torch.is_grad_enabled() and any(x.requires_grad for x in inputs)
-            and not torch._C._are_functorch_transforms_active()
-            and getattr(torch.autograd.forward_ad, "_current_level", -1) < 0)
+    for x in inputs:  # (requires_grad first: the common no-grad call pays one attribute read)
+        if x.requires_grad:
+            return (torch.is_grad_enabled() and not torch._C._are_functorch_transforms_active()
+                    and getattr(torch.autograd.forward_ad, "_current_level", -1) < 0)
+    return False
 
 
 class _ClosedForm(torch.autograd.Function):

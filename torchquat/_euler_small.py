@@ -65,7 +65,10 @@ def matrix_layout(R: Tensor, conv: EulerConvention) -> Tensor:
 def lock(forms: Tensor, eps: float):
     """``2h`` (the middle angle's sine) and the gimbal-lock mask ``2h <= sin(eps)``."""
     two_h = torch.linalg.vector_norm(forms[..., 0, :], dim=-1)  # its gradient is 0 at h = 0
-    return two_h, two_h <= math.sin(eps)
+    threshold = math.sin(eps)
+    if not torch.compiler.is_compiling():  # (under compile eps may be symbolic: no cache key)
+        threshold = constant(f"sin_eps_{eps!r}", threshold, forms)
+    return two_h, two_h <= threshold
 
 
 def _angles(forms: Tensor, conv: EulerConvention, eps: float):
@@ -87,12 +90,12 @@ def _angles(forms: Tensor, conv: EulerConvention, eps: float):
     # t3 = D - tb t1 (middle near 0) or D + tb t1 (near pi), in [-pi, pi]; `flip` is -step
     tb = forms_tables(conv.name)[3]
     flip = torch.where(near_zero, constant(f"sign{tb}", float(tb), forms), constant(f"sign{-tb}", float(-tb), forms))
-    t3 = torch.remainder(torch.addcmul(shifted, t1, flip, value=-1.0), 2.0 * math.pi) - math.pi
+    t3 = torch.remainder(torch.addcmul(shifted, t1, flip, value=-1.0), constant("two_pi", 2.0 * math.pi, forms)) - constant("pi", math.pi, forms)
     if conv.intrinsic:  # the letters' third angle is t1, exactly atan2(0, 1) = 0 at lock
         angles = torch.stack((t3, middle, t1), dim=-1)
     else:  # at lock t1 = 0 here, and SciPy's rule moves the rotation into the first angle:
         # t3 = D, and the lock pair's atan2 (2ab, a^2 - b^2) or (-2cd, c^2 - d^2) is flip * D
-        angles = torch.stack((torch.where(locked, flip * t3, t1), middle, torch.where(locked, 0.0, t3)), dim=-1)
+        angles = torch.stack((torch.where(locked, flip * t3, t1), middle, torch.where(locked, constant("zero", 0.0, forms), t3)), dim=-1)
     return angles, (pairs, two_h, z, near_zero, locked, locked_t1, flip)
 
 
@@ -112,8 +115,9 @@ def _forms_gradient(grad: Tensor, forms: Tensor, conv: EulerConvention, saved) -
     g_angle = torch.stack((g_t1, g_shifted), dim=-1).unsqueeze(-1)
     scale = g_angle / (pairs * pairs).sum(-1, keepdim=True)
     g_pairs = pairs.flip(-1) * scale * constant("dy_dx", (1.0, -1.0), pairs)
-    g_pairs = torch.where(locked_t1, 0.0, g_pairs)
-    g_near_zero = torch.where(near_zero[..., None, None], g_pairs, 0.0)
+    zero = constant("zero", 0.0, pairs)
+    g_pairs = torch.where(locked_t1, zero, g_pairs)
+    g_near_zero = torch.where(near_zero[..., None, None], g_pairs, zero)
     # middle = atan2(2h, z) (proper Euler) or atan2(z, 2h), and 2h = |forms[..., 0, :]|
     g_middle = g_middle / torch.addcmul(z * z, two_h, two_h)
     g_two_h, g_z = g_middle * z, g_middle * two_h
@@ -121,8 +125,10 @@ def _forms_gradient(grad: Tensor, forms: Tensor, conv: EulerConvention, saved) -
         g_z = -g_z
     else:
         g_two_h = -g_two_h
-    # d 2h = (pair / 2h) . d pair; the unit vector is 0 (not 0 / 0) where 2h = 0 (as vector_norm's)
-    g_t1_pair = forms[..., 0, :] / two_h.clamp_min(torch.finfo(two_h.dtype).tiny).unsqueeze(-1) * g_two_h.unsqueeze(-1)
+    # d 2h = (pair / 2h) . d pair; the unit vector is 0 where 2h = 0, as vector_norm's gradient
+    # (dividing by inf: a pair can be non-zero where its norm underflows to 0)
+    safe = torch.where(two_h > zero, two_h, constant("inf", torch.inf, two_h))
+    g_t1_pair = forms[..., 0, :] * (g_two_h / safe).unsqueeze(-1)
     g_forms = torch.cat((g_near_zero, g_pairs - g_near_zero, torch.zeros_like(g_pairs[..., :1, :])), dim=-2)
     g_forms[..., 0, :] += g_t1_pair
     g_forms[..., 4, 0] = g_z

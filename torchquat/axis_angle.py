@@ -8,6 +8,8 @@ are exact to rounding at and near the zero rotation.
 import torch
 from torch import Tensor
 
+from . import _closed_form as closed_form
+from ._closed_form import jacobian_rule
 from ._dispatch import kernel
 from ._math import constant, is_small, small_angle_threshold
 from ._validation import prepare, restore
@@ -16,10 +18,9 @@ from .matrix import matrix_to_quat_unchecked
 __all__ = ["axis_angle_to_quat", "quat_to_axis_angle", "axis_angle_to_matrix", "matrix_to_axis_angle"]
 
 
-@kernel
-def axis_angle_to_quat_unchecked(v: Tensor) -> Tensor:
-    if not is_small(v, 3):
-        return _axis_angle_to_quat_columnwise(v)
+def _half_angle(v: Tensor):
+    """``theta``, the small-angle mask, ``theta`` with 1 there, ``theta / 2`` of that, and
+    ``cos(theta / 2)``, ``sin(theta / 2) / theta``."""
     theta = torch.linalg.vector_norm(v, dim=-1, keepdim=True)  # gradient 0 (not NaN) at v = 0
     # Below theta^2 = sqrt(eps) the next series terms (theta^4/384, theta^4/3840) are under eps.
     small = theta < constant("axis_angle_small", small_angle_threshold(v.dtype) ** 0.5, v)
@@ -28,8 +29,46 @@ def axis_angle_to_quat_unchecked(v: Tensor) -> Tensor:
     cos_half = torch.where(small, torch.addcmul(constant("one", 1.0, v), theta, theta, value=-0.125), torch.cos(half))
     sinc_half = torch.where(small, torch.addcmul(constant("half", 0.5, v), theta, theta, value=-1.0 / 48.0),
                             torch.sin(half) / theta_safe)
+    return theta, small, theta_safe, half, cos_half, sinc_half
+
+
+def _axis_angle_to_quat_small(v: Tensor) -> Tensor:
+    _, _, _, _, cos_half, sinc_half = _half_angle(v)
     # w >= 0: cos(theta / 2) of a float angle is never exactly 0, so its sign alone decides.
     return torch.cat((cos_half, v * sinc_half), dim=-1) * torch.copysign(constant("one", 1.0, v), cos_half)
+
+
+# (..., 3, 4) Jacobian rows: d q / d v_i. Row i is s e_{i+1} plus v_i times (-s / 2, t v) with
+# s = sin(theta / 2) / theta and t = s'(theta) / theta = (cos(theta / 2) / 2 - s) / theta^2.
+_SHIFTED_EYE = ((0.0, 1.0, 0.0, 0.0), (0.0, 0.0, 1.0, 0.0), (0.0, 0.0, 0.0, 1.0))
+
+
+def _axis_angle_to_quat_with_jacobian(v: Tensor):
+    theta, small, theta_safe, half, cos_half, sinc_half = _half_angle(v)
+    sign = torch.copysign(constant("one", 1.0, v), cos_half)
+    q = torch.cat((cos_half, v * sinc_half), dim=-1) * sign
+    # minus_2t = -2t = (s - c / 2) / (theta^2 / 2); its cancellation (eps / theta^2 relative)
+    # multiplies v v^T ~ theta^2, so it costs eps absolute. Series: 1/12 - theta^2 / 480.
+    series = torch.addcmul(constant("one_twelfth", 1.0 / 12.0, v), theta, theta, value=-1.0 / 480.0)
+    minus_2t = torch.where(small, series, torch.sub(sinc_half, cos_half, alpha=0.5) / (half * theta_safe))
+    row = torch.cat((sinc_half, minus_2t * v), dim=-1)  # times -v_i / 2: (-s v_i / 2, t v_i v)
+    eye = sinc_half.unsqueeze(-1) * constant("shifted_eye_3x4", _SHIFTED_EYE, v)
+    jacobian = torch.addcmul(eye, v.unsqueeze(-1), row.unsqueeze(-2), value=-0.5)
+    return q, jacobian * sign.unsqueeze(-1)
+
+
+_AXIS_ANGLE_TO_QUAT = jacobian_rule(_axis_angle_to_quat_small, _axis_angle_to_quat_with_jacobian)
+
+
+@kernel
+def axis_angle_to_quat_unchecked(v: Tensor) -> Tensor:
+    if not is_small(v, 3):
+        return _axis_angle_to_quat_columnwise(v)
+    # Up to about 1000 rows one closed-form node beats autograd's 15; above, its broadcast
+    # (..., 3, 4) products cost more per row.
+    if is_small(v, 3, share=0.25):
+        return closed_form.apply(_AXIS_ANGLE_TO_QUAT, v)
+    return _axis_angle_to_quat_small(v)
 
 
 def axis_angle_to_quat(v: Tensor) -> Tensor:
@@ -52,14 +91,13 @@ def axis_angle_to_quat(v: Tensor) -> Tensor:
     return restore(axis_angle_to_quat_unchecked(v), dtype)
 
 
-@kernel
-def quat_to_axis_angle_unchecked(q: Tensor) -> Tensor:
-    if torch.compiler.is_compiling():
-        return _quat_to_axis_angle_columnwise(q)
+def _axis_angle_scale(q: Tensor):
+    """``w`` (signed), ``u``, ``|w|``, ``|u|``, ``|u|`` with 1 where the series applies, and the factor
+    ``m`` (``angle / |u|``, signed by the hemisphere) of ``u`` in the rotation vector ``m u``."""
     # shortest arc: use the w >= 0 copy (at w == 0 both copies are half turns, either is right)
-    w, u = q.narrow(-1, 0, 1), q.narrow(-1, 1, 3)
-    hemisphere = torch.copysign(constant("two", 2.0, q), w)  # the factor 2 of the angle, signed
-    w = w.abs()
+    w0, u = q.narrow(-1, 0, 1), q.narrow(-1, 1, 3)
+    hemisphere = torch.copysign(constant("two", 2.0, q), w0)  # the factor 2 of the angle, signed
+    w = w0.abs()
     n = torch.linalg.vector_norm(u, dim=-1, keepdim=True)  # gradient 0 (not NaN) at u = 0
     # angle / |u| = 2 atan2(|u|, w) / |u| = (2 / w)(1 - r^2/3 + ...) with r = |u| / w: below
     # r^2 = eps the limit 2 / w is exact to rounding. Above it the closed form is accurate, and
@@ -68,7 +106,41 @@ def quat_to_axis_angle_unchecked(q: Tensor) -> Tensor:
     n_safe = torch.where(small, constant("one", 1.0, q), n)
     w_safe = torch.where(small, w, constant("one", 1.0, q))  # w = 0 (a half turn) only reaches the closed form
     scale = torch.where(small, torch.reciprocal(w_safe), torch.atan2(n_safe, w) / n_safe)
-    return u * (scale * hemisphere)
+    return w0, u, w, n, n_safe, scale * hemisphere
+
+
+def _quat_to_axis_angle_small(q: Tensor) -> Tensor:
+    _, u, _, _, _, m = _axis_angle_scale(q)
+    return u * m
+
+
+# (..., 4, 3) Jacobian rows of v = m(n, w) u, m = 2 sign(w0) atan2(n, w) / n, n = |u|, w = |w0|:
+# d v / d w0 = -2 u / (n^2 + w^2) (0 at w0 = 0, as autograd's |w0|), d v / d u_i = m e_i + k u_i u
+# with k = (2 w0 / (n^2 + w^2) - m) / n^2. In the series branch (m = 2 sign(w0) / w, n_safe = 1)
+# the same expression is a k of at most 2 eps / w on u_i u of at most eps w^2: nothing, as the series'.
+# k's cancellation (eps / r^2 relative, r = n / w) multiplies u_i u ~ n^2: eps relative to m.
+_SHIFTED_EYE_T = ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+
+
+def _quat_to_axis_angle_with_jacobian(q: Tensor):
+    w0, u, w, n, n_safe, m = _axis_angle_scale(q)
+    two_rho = constant("two", 2.0, q) / torch.addcmul(w * w, n, n)  # 2 / (n^2 + w^2)
+    minus_k = torch.addcmul(m, w0, two_rho, value=-1.0) / (n_safe * n_safe)
+    column = torch.cat((torch.sgn(w) * two_rho, minus_k * u), dim=-1)  # minus u's factor in each row
+    eye = m.unsqueeze(-1) * constant("shifted_eye_4x3", _SHIFTED_EYE_T, q)
+    return u * m, torch.addcmul(eye, column.unsqueeze(-1), u.unsqueeze(-2), value=-1.0)
+
+
+_QUAT_TO_AXIS_ANGLE = jacobian_rule(_quat_to_axis_angle_small, _quat_to_axis_angle_with_jacobian)
+
+
+@kernel
+def quat_to_axis_angle_unchecked(q: Tensor) -> Tensor:
+    if torch.compiler.is_compiling():
+        return _quat_to_axis_angle_columnwise(q)
+    if is_small(q, 4, share=0.125):  # closed form vs autograd: crossover measured near 700 rows
+        return closed_form.apply(_QUAT_TO_AXIS_ANGLE, q)
+    return _quat_to_axis_angle_small(q)
 
 
 # Column by column: the same formulas on 1-D columns with Python-number constants. Under

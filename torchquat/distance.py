@@ -3,6 +3,8 @@
 import torch
 from torch import Tensor
 
+from . import _closed_form as closed_form
+from ._closed_form import Rule
 from ._dispatch import kernel
 from ._math import constant, is_small, safe_sqrt
 from ._validation import prepare_pair, restore
@@ -10,20 +12,55 @@ from ._validation import prepare_pair, restore
 __all__ = ["quat_geodesic_distance", "matrix_geodesic_distance"]
 
 
-@kernel
-def quat_geodesic_distance_unchecked(q1: Tensor, q2: Tensor) -> Tensor:
+def _quat_distance_parts(q1: Tensor, q2: Tensor):
+    """The distance, and what the closed-form backward needs."""
     # For unit p, q at half-angle a apart (<p, q> = cos a): |p - q| = 2 sin(a/2) and
     # |p + q| = 2 cos(a/2), so the angle 2a is 4 atan2(|p - q|, |p + q|); taking the smaller of
     # the two norms over the larger picks the nearer of q and -q (sign invariance). Both norms
     # keep full precision at 0 and pi, the difference is exactly 0 for equal inputs, and
     # vector_norm's gradient there is 0 (not NaN): the kink of the distance.
+    r1 = torch.linalg.vector_norm(q1, dim=-1, keepdim=True)
+    r2 = torch.linalg.vector_norm(q2, dim=-1, keepdim=True)
+    p = q1 / r1  # 0 / 0 = NaN for a zero quaternion
+    q = q2 / r2
+    chords = torch.stack((p - q, p + q), dim=-2)
+    lengths = torch.linalg.vector_norm(chords, dim=-1)
+    shorter, longer = torch.aminmax(lengths, dim=-1)
+    return torch.atan2(shorter, longer) * constant("four", 4.0, shorter), (p, q, r1, r2, chords, lengths)
+
+
+def _quat_distance_small(q1: Tensor, q2: Tensor) -> Tensor:
+    return _quat_distance_parts(q1, q2)[0]
+
+
+def _tangent(g: Tensor, p: Tensor, r: Tensor) -> Tensor:
+    """The gradient through ``p = q / r`` (``|p| = 1``): ``g`` less its component along ``p``, over ``r``."""
+    return torch.addcmul(g, p, (p * g).sum(-1, keepdim=True), value=-1.0) / r
+
+
+def _quat_distance_backward(grad: Tensor, inputs, saved):
+    p, q, r1, r2, chords, n = saved
+    # With n0^2 + n1^2 = 4, d 4 atan2(min, max) = sigma (n1 dn0 - n0 dn1), sigma = sign(n1 - n0):
+    # 0 at the tie (distance pi, a maximum), where aminmax splits the gradient evenly.
+    v = n @ constant("swap_negate", ((0.0, -1.0), (1.0, 0.0)), n)  # (n1, -n0)
+    dn = v * (torch.sign(v.sum(-1, keepdim=True)) * grad.unsqueeze(-1))
+    # dn = u . dC with u = C / |C|, or 0 for a zero chord (as vector_norm's gradient; a chord can
+    # be non-zero where its norm underflows to 0): dividing by inf gives that 0
+    safe = torch.where(n > constant("zero", 0.0, n), n, constant("inf", torch.inf, n))
+    g0, g1 = (chords * (dn / safe).unsqueeze(-1)).unbind(-2)
+    # C = (p - q, p + q). The sums are tangent only in exact arithmetic: near distance 0 the
+    # rounding of |p| = 1 is amplified by n1 / n0, so the projection is not skipped.
+    return _tangent(g0 + g1, p, r1), _tangent(g1 - g0, q, r2)
+
+
+_QUAT_DISTANCE = Rule(_quat_distance_small, _quat_distance_parts, _quat_distance_backward)
+
+
+@kernel
+def quat_geodesic_distance_unchecked(q1: Tensor, q2: Tensor) -> Tensor:
     if not (is_small(q1, 4) and is_small(q2, 4)):
         return _quat_distance_columnwise(q1, q2)
-    p = q1 / torch.linalg.vector_norm(q1, dim=-1, keepdim=True)  # 0 / 0 = NaN for a zero quaternion
-    q = q2 / torch.linalg.vector_norm(q2, dim=-1, keepdim=True)
-    chords = torch.linalg.vector_norm(torch.stack((p - q, p + q), dim=-2), dim=-1)
-    shorter, longer = torch.aminmax(chords, dim=-1)
-    return torch.atan2(shorter, longer) * constant("four", 4.0, shorter)
+    return closed_form.apply(_QUAT_DISTANCE, q1, q2)
 
 
 def _quat_distance_columnwise(q1: Tensor, q2: Tensor) -> Tensor:
@@ -70,6 +107,8 @@ def quat_geodesic_distance(q1: Tensor, q2: Tensor) -> Tensor:
 def matrix_geodesic_distance_unchecked(R1: Tensor, R2: Tensor) -> Tensor:
     if torch.compiler.is_compiling():
         return _matrix_distance_columnwise(R1, R2)
+    if R1.dim() != R2.dim():  # linalg.cross broadcasts batch dims but needs equal ranks
+        R1, R2 = torch.broadcast_tensors(R1, R2)
     # For M = R1^T R2, tr M = sum(R1 * R2): no matrix product is needed.
     # vee(M - M^T) = sum_k (R1 column k) x (R2 column k), and R1's own columns contribute
     # nothing, so cross with R2 - R1: exactly 0 for equal inputs (no rounding noise, hence a zero

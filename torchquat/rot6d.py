@@ -5,6 +5,8 @@ import math
 import torch
 from torch import Tensor
 
+from . import _closed_form as closed_form
+from ._closed_form import Rule
 from ._dispatch import kernel
 from ._math import constant, is_small
 from ._validation import prepare, restore
@@ -13,13 +15,13 @@ from .errors import ShapeError
 __all__ = ["rot6d_to_matrix", "matrix_to_rot6d", "rot9d_to_matrix"]
 
 
-@kernel
-def rot6d_to_matrix_unchecked(x: Tensor) -> Tensor:
-    if not is_small(x, 6):
-        return _rot6d_columnwise(x)
+def _rot6d_parts(x: Tensor):
+    """The matrix, and what the closed-form backward needs."""
     a1, a2 = x.narrow(-1, 0, 3), x.narrow(-1, 3, 3)
-    b1 = a1 / torch.linalg.vector_norm(a1, dim=-1, keepdim=True)  # NaN for a zero first column
-    b2 = torch.addcmul(a2, b1, (b1 * a2).sum(-1, keepdim=True), value=-1.0)
+    r1 = torch.linalg.vector_norm(a1, dim=-1, keepdim=True)
+    b1 = a1 / r1  # NaN for a zero first column
+    d = (b1 * a2).sum(-1, keepdim=True)
+    b2 = torch.addcmul(a2, b1, d, value=-1.0)
     n = torch.linalg.vector_norm(b2, dim=-1, keepdim=True)
     # Collinear to rounding: what is left of a2 is rounding noise, whose direction would be a
     # plausible but arbitrary rotation. Give NaN instead (the whole matrix).
@@ -27,7 +29,35 @@ def rot6d_to_matrix_unchecked(x: Tensor) -> Tensor:
     valid = torch.where(n > noise, constant("one", 1.0, x), constant("nan", math.nan, x))
     b1 = b1 * valid
     b2 = b2 * (valid / n)
-    return torch.stack((b1, b2, torch.linalg.cross(b1, b2, dim=-1)), dim=-1)
+    b3 = torch.linalg.cross(b1, b2, dim=-1)
+    R = torch.stack((b1, b2, b3), dim=-1)
+    return R, (R, b1, b3, r1, d, n)
+
+
+def _rot6d_small(x: Tensor) -> Tensor:
+    return _rot6d_parts(x)[0]
+
+
+def _rot6d_backward(grad: Tensor, inputs, saved):
+    R, b1, b3, r1, d, n = saved
+    # Gram-Schmidt's vector-Jacobian product (b1 = a1 / r1, a2 = d b1 + n b2, b3 = b1 x b2) only
+    # sees the skew part of R^T G (G = grad), whose axial vector is R^T w, w = sum_k b_k x G_k:
+    # a2's gradient is (b1 . w / n) b3 and a1's is (w x b1 - d (b1 . w / n) b3) / r1. (Two
+    # cross products instead of autograd's thirteen nodes.)
+    w = torch.linalg.cross(R, grad, dim=-2).sum(-1)
+    g2 = b3 * ((b1 * w).sum(-1, keepdim=True) / n)
+    g1 = torch.addcmul(torch.linalg.cross(w, b1, dim=-1), d, g2, value=-1.0) / r1
+    return (torch.cat((g1, g2), dim=-1),)
+
+
+_ROT6D = Rule(_rot6d_small, _rot6d_parts, _rot6d_backward)
+
+
+@kernel
+def rot6d_to_matrix_unchecked(x: Tensor) -> Tensor:
+    if not is_small(x, 6):
+        return _rot6d_columnwise(x)
+    return closed_form.apply(_ROT6D, x)
 
 
 def _rot6d_columnwise(x: Tensor) -> Tensor:

@@ -1,0 +1,216 @@
+"""The closed-form backward passes of ``rot6d_to_matrix`` and ``quat_geodesic_distance``
+(torchquat._closed_form) against autograd through the same small-batch forward, at generic and
+singular inputs, and the double-backward path."""
+
+import math
+
+import pytest
+import torch
+
+import torchquat as tq
+from torchquat import distance, rot6d
+from rotation_samples import all_singular, cube_rotations, uniform
+
+F64 = torch.float64
+
+
+def _grads(fn, inputs, grad):
+    leaves = [x.clone().requires_grad_() for x in inputs]
+    out = fn(*leaves)
+    return out, torch.autograd.grad(out, leaves, grad)
+
+
+def _relative_error(got, expected):
+    return ((got - expected).abs() / (1.0 + expected.abs())).max().item()
+
+
+def _check_distance(q1, q2, tol=1e-12):
+    """The public function's closed-form gradients against autograd through the plain forward."""
+    grad = torch.randn(torch.broadcast_shapes(q1.shape, q2.shape)[:-1], dtype=F64,
+                       generator=torch.Generator().manual_seed(11))
+    expected, g_expected = _grads(distance._quat_distance_small, (q1, q2), grad)
+    leaves = [q1.clone().requires_grad_(), q2.clone().requires_grad_()]
+    got = tq.quat_geodesic_distance(*leaves)
+    assert type(got.grad_fn).__name__ == "_ClosedFormBackward"
+    g_got = torch.autograd.grad(got, leaves, grad)
+    assert torch.equal(got, expected)
+    for a, b in zip(g_got, g_expected):
+        assert a.shape == b.shape
+        assert torch.equal(torch.isfinite(a), torch.isfinite(b))
+        assert _relative_error(a, b) < tol
+
+
+def _turn(q, axis_angle):
+    return tq.quat_multiply(q, tq.axis_angle_to_quat(axis_angle.expand(q.shape[:-1] + (3,))))
+
+
+# ---------------------------------------------------------------- quat_geodesic_distance
+
+
+def test_quat_distance_rule_forward_is_the_plain_forward():
+    q1, q2 = uniform(30, seed=1) * 2.0, uniform(30, seed=2) * 0.3
+    out, _ = distance._QUAT_DISTANCE.forward(q1, q2)
+    assert torch.equal(out, distance._QUAT_DISTANCE.plain(q1, q2))
+    assert torch.equal(out, tq.quat_geodesic_distance(q1, q2))  # the no-grad path
+
+
+def test_quat_distance_gradient_generic_non_unit():
+    scale = torch.linspace(0.1, 10.0, 40, dtype=F64).unsqueeze(-1)
+    _check_distance(uniform(40, seed=3) * scale, uniform(40, seed=4) * scale.flip(0))
+
+
+def test_quat_distance_gradient_at_zero_distance_is_zero():
+    q = uniform(20, seed=5)
+    for other in (q, -2.0 * q, 0.5 * q):  # identical, q and -q, scaled
+        _check_distance(q, other)
+        leaf = q.clone().requires_grad_()
+        (g,) = torch.autograd.grad(tq.quat_geodesic_distance(leaf, other).sum(), leaf)
+        assert torch.equal(g, torch.zeros_like(g))
+
+
+def test_quat_distance_gradient_at_pi():
+    q = uniform(20, seed=6)
+    axis = torch.tensor([0.0, 0.6, 0.0, -0.8], dtype=F64)  # a pure quaternion: a half turn
+    _check_distance(q, tq.quat_multiply(q, axis.expand(20, 4)))
+    # exact ties of the two chords (distance exactly pi: the gradient is 0 there)
+    p = torch.tensor([[1.0, 0.0, 0.0, 0.0], [0.5, 0.5, 0.5, 0.5]], dtype=F64)
+    q = torch.tensor([[0.0, 1.0, 0.0, 0.0], [0.5, -0.5, 0.5, -0.5]], dtype=F64)
+    _check_distance(p, 3.0 * q)
+    leaf = p.clone().requires_grad_()
+    out = tq.quat_geodesic_distance(leaf, q)
+    assert torch.equal(out, torch.full_like(out, math.pi))
+    (g,) = torch.autograd.grad(out.sum(), leaf)
+    assert torch.equal(g, torch.zeros_like(g))
+
+
+@pytest.mark.parametrize("angle", [1e-12, 1e-9, 1e-6, math.pi - 1e-9, math.pi - 1e-6])
+def test_quat_distance_gradient_near_zero_and_pi(angle):
+    q = uniform(30, seed=7) * 1.7
+    axis = torch.randn(30, 3, dtype=F64, generator=torch.Generator().manual_seed(8))
+    near = _turn(q, axis / axis.norm(dim=-1, keepdim=True) * angle)
+    _check_distance(q, near)
+    _check_distance(q, -0.25 * near)
+
+
+def test_quat_distance_gradient_at_singular_sets_and_cube_pairs():
+    s = all_singular()
+    _check_distance(s, s.flip(0) * 1.5)
+    _check_distance(s, s.roll(1, 0))
+    cube = tq.matrix_to_quat(cube_rotations())  # every pair: 0, 90, 120, 180 degrees, exact ties
+    _check_distance(cube.unsqueeze(1), cube.unsqueeze(0))
+
+
+def test_quat_distance_gradient_when_a_chord_norm_underflows():
+    # |p - q| squares to 0: vector_norm says 0 and its gradient is 0, not C / 0
+    p = torch.tensor([1.0, 5e-201, 0.0, 0.0], dtype=F64)
+    q = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=F64)
+    _check_distance(p, q)
+    _check_distance(p, -q)
+
+
+@pytest.mark.parametrize("shapes", [((6, 4), (1, 4)), ((4,), (6, 4)), ((6, 4), (4,)), ((2, 1, 4), (3, 4)), ((4,), (4,))])
+def test_quat_distance_gradient_broadcasts(shapes):
+    g = torch.Generator().manual_seed(9)
+    q1 = torch.randn(shapes[0], dtype=F64, generator=g)
+    q2 = torch.randn(shapes[1], dtype=F64, generator=g)
+    _check_distance(q1, q2)
+
+
+def test_quat_distance_double_backward():
+    g = torch.Generator().manual_seed(10)
+    q1 = (torch.randn(3, 4, dtype=F64, generator=g)).requires_grad_()
+    q2 = (torch.randn(3, 4, dtype=F64, generator=g)).requires_grad_()
+    assert torch.autograd.gradgradcheck(tq.quat_geodesic_distance, (q1, q2))
+    q3 = torch.randn(1, 4, dtype=F64, generator=g).requires_grad_()
+    assert torch.autograd.gradgradcheck(tq.quat_geodesic_distance, (q1, q3))
+
+
+def test_quat_distance_float32_gradient_matches_float64():
+    q1, q2 = uniform(10, seed=12), uniform(10, seed=13)
+    leaves = [q1.float().requires_grad_(), q2.float().requires_grad_()]
+    g32 = torch.autograd.grad(tq.quat_geodesic_distance(*leaves).sum(), leaves)
+    g64 = _grads(distance._quat_distance_small, (q1, q2), torch.ones(10, dtype=F64))[1]
+    for a, b in zip(g32, g64):
+        assert a.dtype == torch.float32
+        assert (a.double() - b).abs().max() < 1e-4
+
+
+# ---------------------------------------------------------------- rot6d_to_matrix
+
+
+def _check_rot6d(x, tol=1e-12):
+    grad = torch.randn(x.shape[:-1] + (3, 3), dtype=F64, generator=torch.Generator().manual_seed(21))
+    expected, (g_expected,) = _grads(rot6d._rot6d_small, (x,), grad)
+    leaf = x.clone().requires_grad_()
+    got = tq.rot6d_to_matrix(leaf)
+    assert type(got.grad_fn).__name__ == "_ClosedFormBackward"
+    (g_got,) = torch.autograd.grad(got, leaf, grad)
+    torch.testing.assert_close(got, expected, rtol=0, atol=0, equal_nan=True)
+    assert torch.equal(torch.isfinite(g_got), torch.isfinite(g_expected))
+    return g_got, g_expected
+
+
+def test_rot6d_rule_forward_is_the_plain_forward():
+    x = torch.randn(30, 6, dtype=F64, generator=torch.Generator().manual_seed(20))
+    out, _ = rot6d._ROT6D.forward(x)
+    assert torch.equal(out, rot6d._ROT6D.plain(x))
+    assert torch.equal(out, tq.rot6d_to_matrix(x))  # the no-grad path
+
+
+@pytest.mark.parametrize("shape", [(6,), (40, 6), (2, 3, 6)])
+def test_rot6d_gradient_generic(shape):
+    g = torch.Generator().manual_seed(22)
+    x = torch.randn(shape, dtype=F64, generator=g) * torch.rand(shape[:-1] + (1,), dtype=F64, generator=g).mul(20.0)
+    g_got, g_expected = _check_rot6d(x)
+    assert _relative_error(g_got, g_expected) < 1e-12
+
+
+def test_rot6d_gradient_at_rotations():
+    # the 6D of rotations (orthonormal columns), the cube's included
+    R = torch.cat([tq.quat_to_matrix(torch.cat([uniform(30, seed=23), all_singular()])), cube_rotations()])
+    g_got, g_expected = _check_rot6d(tq.matrix_to_rot6d(R) * 3.0)
+    assert _relative_error(g_got, g_expected) < 1e-12
+
+
+@pytest.mark.parametrize("offset", [1e-3, 1e-6, 1e-9, 1e-12])
+def test_rot6d_gradient_nearly_collinear(offset):
+    # a2 = 2.5 a1 + offset: the Jacobian grows like |a2| / n and both gradients lose digits in
+    # proportion (against a 80-digit reference the closed form is as close as autograd or closer)
+    g = torch.Generator().manual_seed(24)
+    a1 = torch.randn(20, 3, dtype=F64, generator=g)
+    x = torch.cat([a1, 2.5 * a1 + offset * torch.randn(20, 3, dtype=F64, generator=g)], dim=-1)
+    g_got, g_expected = _check_rot6d(x)
+    finite = torch.isfinite(g_expected).all(-1)
+    a2 = x[..., 3:]
+    b1 = x[..., :3] / x[..., :3].norm(dim=-1, keepdim=True)
+    n = (a2 - b1 * (b1 * a2).sum(-1, keepdim=True)).norm(dim=-1)
+    condition = a2.norm(dim=-1) / n
+    err = (g_got - g_expected).abs().amax(-1) / g_expected.abs().amax(-1)
+    assert (err[finite] <= 1e-12 + 1e-14 * condition[finite]).all()
+
+
+def test_rot6d_collinear_gives_nan():
+    a1 = torch.tensor([[1.0, 2.0, 3.0], [0.0, 0.0, 0.0]], dtype=F64)
+    x = torch.cat([a1, torch.tensor([[2.0, 4.0, 6.0], [1.0, 0.0, 0.0]], dtype=F64)], dim=-1)
+    leaf = x.clone().requires_grad_()
+    out = tq.rot6d_to_matrix(leaf)
+    assert torch.isnan(out).all()
+    torch.autograd.grad(out.sum(), leaf)  # NaN gradients, as autograd's, but no error
+    _check_rot6d(x)
+
+
+def test_rot6d_double_backward():
+    x = torch.randn(3, 6, dtype=F64, generator=torch.Generator().manual_seed(25)).requires_grad_()
+    assert torch.autograd.gradgradcheck(tq.rot6d_to_matrix, (x,))
+
+
+def test_rot6d_torch_func_and_forward_mode_take_the_plain_forward():
+    x = torch.randn(3, 6, dtype=F64, generator=torch.Generator().manual_seed(26))
+    jac_rev = torch.func.vmap(torch.func.jacrev(tq.rot6d_to_matrix))(x)
+    jac_fwd = torch.func.vmap(torch.func.jacfwd(tq.rot6d_to_matrix))(x)
+    assert torch.allclose(jac_rev, jac_fwd, atol=1e-12)
+    leaf = x.clone().requires_grad_()
+    out = tq.rot6d_to_matrix(leaf)  # the closed form, one output entry at a time
+    rows = torch.stack([torch.autograd.grad(out[:, i, j].sum(), leaf, retain_graph=True)[0]
+                        for i in range(3) for j in range(3)], dim=1).unflatten(1, (3, 3))
+    assert torch.allclose(jac_rev, rows, atol=1e-12)
