@@ -48,6 +48,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     parser.add_argument("--min-run-time", type=float, default=0.2, metavar="SECONDS",
                         help="blocked_autorange min_run_time per cell (default: 0.2); at least 3 "
                         "measurements are taken whatever it is")
+    parser.add_argument("--rounds", type=int, default=3, metavar="R",
+                        help="at N <= 10,000 time every implementation R times, round-robin, and keep "
+                        "each one's fastest median (default: 3): a shared machine's speed drifts "
+                        "over minutes, and a drift during one cell would skew its ratio")
     parser.add_argument("--json", metavar="FILE", default=None, help="also write every number to FILE")
     parser.add_argument("--allocator", choices=["auto", "reexec", "mallopt", "none"], default="auto",
                         help="how to keep glibc from page-faulting fresh outputs at large N: re-exec "
@@ -110,6 +114,7 @@ def run(args: argparse.Namespace) -> int:
     dtype = _DTYPES[getattr(args, "dtype", "float32")]
     threads = int(getattr(args, "threads", 1))
     min_run_time = float(getattr(args, "min_run_time", 0.2))
+    rounds = max(1, int(getattr(args, "rounds", 3)))
     passes = ["fwd", "fwd+bwd"] if getattr(args, "backward", True) else ["fwd"]
     seed = int(getattr(args, "seed", 0))
     compiled = bool(getattr(args, "compiled", False)) and _ops.has_compiled_kernels()
@@ -159,22 +164,32 @@ def run(args: argparse.Namespace) -> int:
             impls += [(p.name, p.impls[op.name], agrees.get((op.name, p.name))) for p in active
                       if op.name in p.impls]
             for pss in passes:
+                cells = []  # (record, callable)
                 for name, impl, ok in impls:
                     if pss == "fwd+bwd" and not impl.backward:
                         continue
                     rec = {"op": op.name, "n": n, "pass": pss, "impl": name, "call": impl.call,
                            "agrees": ok, "median_s": None, "iqr_s": None, "runs": 0, "error": None}
-                    fn = None
                     try:
                         fn = _callable(impl, inputs, pss == "fwd+bwd", seed)
                         if name == _report.COMPILED:
                             fn(), fn()  # compile (excluded from the timing)
-                        t = _timing.measure(fn, min_run_time, threads)
-                        rec.update(median_s=t.median, iqr_s=t.iqr, runs=t.runs, calls=t.calls)
                     except Exception as exc:
-                        rec["error"] = f"{type(exc).__name__}: {exc}"[:300]
+                        rec["error"], fn = f"{type(exc).__name__}: {exc}"[:300], None
+                    cells.append((rec, fn))
                     results.append(rec)
-                    del fn
+                for _ in range(rounds if n <= 10_000 else 1):
+                    for rec, fn in cells:
+                        if fn is None:
+                            continue
+                        try:
+                            t = _timing.measure(fn, min_run_time, threads)
+                        except Exception as exc:
+                            rec["error"] = f"{type(exc).__name__}: {exc}"[:300]
+                            continue
+                        if rec["median_s"] is None or t.median < rec["median_s"]:
+                            rec.update(median_s=t.median, iqr_s=t.iqr, runs=t.runs, calls=t.calls)
+                del cells
             out = op.tq_fn(*(inputs[k] for k in op.args))
             in_width = sum(inputs[k][0].numel() for k in op.args)
             # the cheapest of three fresh preallocations: a large copy's time varies run to run
@@ -194,7 +209,8 @@ def run(args: argparse.Namespace) -> int:
         f"torchquat {torchquat.__version__}, torch {torch.__version__}, {str(dtype).replace('torch.', '')}, {threads} thread(s), "
         f"{platform.machine()} {platform.processor() or ''} ({os.cpu_count()} CPUs), Python {platform.python_version()}",
         f"Medians of torch.utils.benchmark blocked_autorange(min_run_time={min_run_time}) (at least 3 "
-        "measurements); fwd+bwd = the call plus torch.autograd.grad with a preallocated output gradient.",
+        f"measurements); at N <= 10,000 the fastest such median of {rounds} round-robin round(s) over the "
+        "implementations; fwd+bwd = the call plus torch.autograd.grad with a preallocated output gradient.",
         allocator,
         "Peers: " + (", ".join(f"{p.name} {p.version} (import {p.import_s:.2f} s)" for p in active) or "none"),
     ]
