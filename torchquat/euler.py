@@ -182,7 +182,9 @@ def euler_to_quat_unchecked(angles: Tensor, convention: EulerConvention) -> Tens
         q = [combine(products, terms) for terms in _SIGN_COLUMNS[convention.name]]
         sign = torch.copysign(torch.ones_like(q[0]), q[0])  # w >= 0 (a where on w < 0 mispredicts)
         return torch.stack([c * sign for c in q], dim=-1)
-    return closed_form.apply(_EULER_TO_QUAT, angles, convention=convention)
+    if is_small(angles, 3, share=0.125):  # above ~500 rows the 4-slot outer product costs more than autograd saves
+        return closed_form.apply(_EULER_TO_QUAT, angles, convention=convention)
+    return _euler_to_quat_small(angles, convention)
 
 
 def _to_radians(angles: Tensor, degrees: bool) -> Tensor:
@@ -235,8 +237,10 @@ _EULER_TO_MATRIX = jacobian_rule(_euler_to_matrix_small, _euler_to_matrix_with_j
 
 @kernel
 def euler_to_matrix_unchecked(angles: Tensor, convention: EulerConvention) -> Tensor:
-    if is_small(angles, 3):
+    if is_small(angles, 3, share=1 / 16):  # the 4-slot, 27-column outer product: pays up to ~250 rows
         return closed_form.apply(_EULER_TO_MATRIX, angles, convention=convention)
+    if is_small(angles, 3):
+        return _euler_to_matrix_small(angles, convention)
     # large batches: the 27-column outer product costs more memory passes than the quaternion
     return quat_to_matrix_unchecked(euler_to_quat_unchecked(angles, convention=convention))
 
