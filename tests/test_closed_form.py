@@ -94,3 +94,24 @@ def test_euler_to_rotation_jacobians_match_autograd(convention, target):
     (g,) = torch.autograd.grad(out, x, grad)
     expected_g = (expected.reshape(angles.shape[0], -1, 3) * grad.reshape(angles.shape[0], -1, 1)).sum(-2)
     assert torch.allclose(g, expected_g, atol=1e-13, rtol=0)
+
+
+def test_matrix_to_quat_jacobian_matches_autograd_for_every_shepperd_choice():
+    from torchquat import matrix as M
+    # uniform rotations, the singular sets (identity, half turns about every axis) and the cube's 24
+    q = torch.cat([uniform(30, seed=12), all_singular(), tq.matrix_to_quat(cube_rotations())])
+    R = tq.quat_to_matrix(q)
+    value, jacobian = M._matrix_to_quat_with_jacobian(R)
+    assert torch.equal(value, M._matrix_to_quat_small(R))
+    assert set(M._shepperd_parts(R)[1].tolist()) == {0, 1, 2, 3}  # every one of Shepperd's four rows is taken
+    leaves = R.clone().requires_grad_()
+    plain = M._matrix_to_quat_small(leaves)
+    expected = torch.stack([torch.autograd.grad(plain[:, k].sum(), leaves, retain_graph=True)[0].flatten(-2)
+                            for k in range(4)], dim=-1)  # rows are independent: per-row Jacobians
+    assert torch.allclose(jacobian, expected, atol=1e-14, rtol=0)
+    few = R[:40].clone().requires_grad_()
+    out = tq.matrix_to_quat(few)
+    assert type(out.grad_fn).__name__ == "_ClosedFormBackward"
+    grad = torch.randn(out.shape, dtype=out.dtype, generator=torch.Generator().manual_seed(13))
+    (g,) = torch.autograd.grad(out, few, grad)
+    assert torch.allclose(g.flatten(-2), (expected[:40] * grad.unsqueeze(-2)).sum(-1), atol=1e-14, rtol=0)

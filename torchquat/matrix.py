@@ -3,6 +3,8 @@
 import torch
 from torch import Tensor
 
+from . import _closed_form as closed_form
+from ._closed_form import jacobian_rule
 from ._dispatch import kernel
 from ._math import constant, contract, is_small
 from ._validation import prepare, restore
@@ -97,6 +99,34 @@ def _shepperd_tables():
 _SHEPPERD, _SHEPPERD_OFFSET, _SHEPPERD_ROWS = _shepperd_tables()
 
 
+def _shepperd_parts(R: Tensor):
+    vals = contract(R.flatten(-2), "shepperd", _SHEPPERD) + constant("shepperd_offset", _SHEPPERD_OFFSET, R)
+    best = vals[..., :4].argmax(-1)
+    row = vals.gather(-1, constant("shepperd_rows", _SHEPPERD_ROWS, best)[best])
+    # Normalise and make it canonical (w >= 0; see standardize_sign) with one multiplication.
+    scale = torch.rsqrt((row * row).sum(-1, keepdim=True)) * standardize_sign(row)
+    return row * scale, best, scale
+
+
+def _matrix_to_quat_small(R: Tensor) -> Tensor:
+    return _shepperd_parts(R)[0]
+
+
+# d row / d R for each of Shepperd's four choices: the table's columns that row gathers, (4, 9, 4)
+_SHEPPERD_ROW_JACOBIANS = [[[_SHEPPERD[m][k] for k in rows] for m in range(9)] for rows in _SHEPPERD_ROWS]
+
+
+def _matrix_to_quat_with_jacobian(R: Tensor):
+    q, best, scale = _shepperd_parts(R)
+    # q = row s with s = sign / |row|: dq = s (I - q q^T) d row, and d row / dR is a table lookup
+    d_row = constant("shepperd_row_jacobians", _SHEPPERD_ROW_JACOBIANS, R)[best]  # (..., 9, 4)
+    along_q = (d_row * q.unsqueeze(-2)).sum(-1, keepdim=True)
+    return q, torch.addcmul(d_row, along_q, q.unsqueeze(-2), value=-1.0) * scale.unsqueeze(-1)
+
+
+_MATRIX_TO_QUAT = jacobian_rule(_matrix_to_quat_small, _matrix_to_quat_with_jacobian)
+
+
 @kernel
 def matrix_to_quat_unchecked(R: Tensor) -> Tensor:
     """Shepperd's method (1978), branch-free, returning ``w >= 0``.
@@ -109,12 +139,9 @@ def matrix_to_quat_unchecked(R: Tensor) -> Tensor:
     """
     if torch.compiler.is_compiling():
         return _shepperd_columnwise(R)
-    vals = contract(R.flatten(-2), "shepperd", _SHEPPERD) + constant("shepperd_offset", _SHEPPERD_OFFSET, R)
-    best = vals[..., :4].argmax(-1)
-    row = vals.gather(-1, constant("shepperd_rows", _SHEPPERD_ROWS, best)[best])
-    # Normalise and make it canonical (w >= 0; see standardize_sign) with one multiplication.
-    scale = torch.rsqrt((row * row).sum(-1, keepdim=True)) * standardize_sign(row)
-    return row * scale
+    if is_small(R, 9, share=1 / 64):  # the looked-up (..., 9, 4) Jacobians pay up to ~100 rows
+        return closed_form.apply(_MATRIX_TO_QUAT, R)
+    return _matrix_to_quat_small(R)
 
 
 def _shepperd_columnwise(R: Tensor) -> Tensor:
