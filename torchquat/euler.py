@@ -98,12 +98,22 @@ _OUTER_INDEX = {
 }
 
 
+def _products_of_triples(triples: Tensor) -> Tensor:
+    """``(..., 3) -> (...)``: ``prod`` for a few rows (one dispatch instead of an ``unbind`` and two
+    multiplications: 3 us at one rotation), two multiplications above (``prod``'s backward, which
+    guards against zeros, is 1.4x slower at 1,000 rows, and its forward is slower from ~10 rows).
+    The same numbers either way."""
+    if triples.numel() <= 512:
+        return triples.prod(-1)
+    a, b, c = triples.unbind(-1)
+    return a * b * c
+
+
 def _outer(factors: Tensor, with_one: bool) -> Tensor:
     """The outer product of the three angles' factor rows ``(..., 3, k) -> (..., k^3)``, flattened:
-    one gather of the factors and two multiplications (fewer dispatches than broadcasting)."""
+    one gather of the factors and their products (fewer dispatches than broadcasting)."""
     index = constant(f"outer_index_{with_one}", _OUTER_INDEX[with_one], factors, dtype=torch.long)
-    a, b, c = factors.flatten(-2).index_select(-1, index).unflatten(-1, (-1, 3)).unbind(-1)
-    return a * b * c
+    return _products_of_triples(factors.flatten(-2).index_select(-1, index).unflatten(-1, (-1, 3)))
 
 
 def _trig_factors(angles: Tensor, with_one: bool) -> Tensor:
@@ -150,8 +160,7 @@ def _trig_outer_with_derivatives(angles: Tensor, with_one: bool, scale: float) -
                     [v * (scale if j >= k else 1.0) for j, v in enumerate(_WITH_DERIVATIVE_SIGN[with_one])], factors)
     rows = factors.index_select(-1, order) * sign
     index = constant(f"slot_index_{with_one}", _SLOT_INDEX[with_one], rows, dtype=torch.long)
-    a, b, c = rows.flatten(-2).index_select(-1, index).unflatten(-1, (4, -1, 3)).unbind(-1)
-    return a * b * c
+    return _products_of_triples(rows.flatten(-2).index_select(-1, index).unflatten(-1, (4, -1, 3)))
 
 
 def _euler_to_quat_small(angles: Tensor, convention: EulerConvention) -> Tensor:
