@@ -63,7 +63,8 @@ def matrix_layout(R: Tensor, conv: EulerConvention) -> Tensor:
 
 
 def lock(forms: Tensor, eps: float):
-    """``2h`` (the middle angle's sine) and the gimbal-lock mask ``2h <= sin(eps)``."""
+    """``2h`` (the middle angle's sine) and the gimbal-lock mask ``2h <= sin(eps)`` (for
+    :func:`euler_gimbal_lock`; the angles take the same test shaped as a mask of t1's pair)."""
     two_h = torch.linalg.vector_norm(forms[..., 0, :], dim=-1)  # its gradient is 0 at h = 0
     threshold = math.sin(eps)
     if not torch.compiler.is_compiling():  # (under compile eps may be symbolic: no cache key)
@@ -73,13 +74,15 @@ def lock(forms: Tensor, eps: float):
 
 def _angles(forms: Tensor, conv: EulerConvention, eps: float):
     """The angles, and what the closed-form backward needs."""
-    two_h, locked = lock(forms, eps)
+    two_h = torch.linalg.vector_norm(forms[..., 0, :], dim=-1)
+    # lock()'s test, shaped as a mask of t1's pair in the (t1, double angle) pairs below
+    sin_eps = math.sin(eps)
+    locked_t1 = two_h[..., None, None] <= constant(f"lock_thresholds_{eps!r}", ((sin_eps, sin_eps), (-1.0, -1.0)), forms)
     z = forms[..., 4, 0]
     near_zero = z >= 0 if conv.symmetric else z <= 0
     # Choose each (Y, X) pair *before* atan2, so a discarded pair (which is (0, 0) at an exact
     # lock, where atan2's gradient is NaN) never reaches it; at lock t1's pair is (0, 1).
     pairs = torch.where(near_zero[..., None, None], forms[..., 0:2, :], forms[..., 2:4, :])
-    locked_t1 = locked[..., None, None] & constant("lock_mask", ((True, True), (False, False)), forms, torch.bool)
     pairs = torch.where(locked_t1, constant("lock_pair", ((0.0, 1.0), (0.0, 0.0)), forms), pairs)
     if pairs.numel() > 64:  # a strided atan2 is not vectorised (15x slower): y and x contiguous first
         y, x = pairs.movedim(-1, 0).contiguous()
@@ -95,8 +98,9 @@ def _angles(forms: Tensor, conv: EulerConvention, eps: float):
         angles = torch.stack((t3, middle, t1), dim=-1)
     else:  # at lock t1 = 0 here, and SciPy's rule moves the rotation into the first angle:
         # t3 = D, and the lock pair's atan2 (2ab, a^2 - b^2) or (-2cd, c^2 - d^2) is flip * D
+        locked = locked_t1[..., 0, 0]
         angles = torch.stack((torch.where(locked, flip * t3, t1), middle, torch.where(locked, constant("zero", 0.0, forms), t3)), dim=-1)
-    return angles, (pairs, two_h, z, near_zero, locked, locked_t1, flip)
+    return angles, (pairs, two_h, z, near_zero, locked_t1, flip)
 
 
 def angles(forms: Tensor, conv: EulerConvention, eps: float) -> Tensor:
@@ -106,12 +110,12 @@ def angles(forms: Tensor, conv: EulerConvention, eps: float) -> Tensor:
 
 def _forms_gradient(grad: Tensor, forms: Tensor, conv: EulerConvention, saved) -> Tensor:
     """The gradient with respect to the forms, from ``d atan2(y, x) = (x dy - y dx) / (x^2 + y^2)``."""
-    pairs, two_h, z, near_zero, locked, locked_t1, flip = saved
+    pairs, two_h, z, near_zero, locked_t1, flip = saved
     g0, g_middle, g2 = grad.unbind(-1)
     if conv.intrinsic:  # angles (t3, middle, t1), t3 = shifted - flip t1
         g_shifted, g_t1 = g0, torch.addcmul(g2, flip, g0, value=-1.0)
     else:  # (t1 or flip t3 at lock, middle, t3 or 0 at lock); t1's lock pair is a constant
-        g_shifted, g_t1 = torch.where(locked, flip * g0, g2), torch.addcmul(g0, flip, g2, value=-1.0)
+        g_shifted, g_t1 = torch.where(locked_t1[..., 0, 0], flip * g0, g2), torch.addcmul(g0, flip, g2, value=-1.0)
     g_angle = torch.stack((g_t1, g_shifted), dim=-1).unsqueeze(-1)
     scale = g_angle / (pairs * pairs).sum(-1, keepdim=True)
     g_pairs = pairs.flip(-1) * scale * constant("dy_dx", (1.0, -1.0), pairs)
