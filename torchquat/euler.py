@@ -230,7 +230,7 @@ def euler_to_quat(angles: Tensor, convention: str, degrees: bool = False) -> Ten
 
 
 def _euler_to_matrix_small(angles: Tensor, convention: EulerConvention) -> Tensor:
-    # one trilinear form: the trig, a gather and two products, one matmul
+    # one trilinear form: the trig, a gather and the products, one matmul
     R = contract(_trig_outer(angles, with_one=True), "euler_matrix_" + convention.name, _MATRIX_TABLES[convention.name])
     return R.unflatten(-1, (3, 3))
 
