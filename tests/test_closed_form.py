@@ -115,3 +115,12 @@ def test_matrix_to_quat_jacobian_matches_autograd_for_every_shepperd_choice():
     grad = torch.randn(out.shape, dtype=out.dtype, generator=torch.Generator().manual_seed(13))
     (g,) = torch.autograd.grad(out, few, grad)
     assert torch.allclose(g.flatten(-2), (expected[:40] * grad.unsqueeze(-2)).sum(-1), atol=1e-14, rtol=0)
+
+
+@pytest.mark.parametrize("fn", [tq.matrix_to_quat, lambda a: tq.euler_to_quat(a, "xzy"), lambda a: tq.euler_to_matrix(a, "ZXZ")],
+                         ids=["matrix_to_quat", "euler_to_quat", "euler_to_matrix"])
+def test_double_backward_of_the_jacobian_rules_is_exact(fn):
+    x = tq.quat_to_matrix(uniform(4, seed=14)) if fn is tq.matrix_to_quat else \
+        torch.randn(4, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(14))
+    assert type(fn(x.clone().requires_grad_()).grad_fn).__name__ == "_ClosedFormBackward"
+    assert torch.autograd.gradgradcheck(fn, (x.requires_grad_(),))
