@@ -124,3 +124,23 @@ def test_double_backward_of_the_jacobian_rules_is_exact(fn):
         torch.randn(4, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(14))
     assert type(fn(x.clone().requires_grad_()).grad_fn).__name__ == "_ClosedFormBackward"
     assert torch.autograd.gradgradcheck(fn, (x.requires_grad_(),))
+
+
+BATCHED_GRADS = {
+    "quat_to_euler": lambda q: tq.quat_to_euler(q, "ZYX"), "quat_to_euler[xyz]": lambda q: tq.quat_to_euler(q, "xyz"),
+    "matrix_to_euler": lambda q: tq.matrix_to_euler(tq.quat_to_matrix(q), "ZXZ"),
+    "euler_to_quat": lambda q: tq.euler_to_quat(q[..., :3], "ZYX"), "euler_to_matrix": lambda q: tq.euler_to_matrix(q[..., :3], "yxz"),
+    "matrix_to_quat": lambda q: tq.matrix_to_quat(tq.quat_to_matrix(q)), "axis_angle_to_quat": lambda q: tq.axis_angle_to_quat(q[..., 1:]),
+    "quat_to_axis_angle": tq.quat_to_axis_angle, "rot6d_to_matrix": lambda q: tq.rot6d_to_matrix(torch.cat([q, q[..., :2] * 2 + 1], -1)),
+    "quat_geodesic_distance": lambda q: tq.quat_geodesic_distance(q, q.flip(0)),
+}
+
+
+@pytest.mark.parametrize("name", sorted(BATCHED_GRADS))
+def test_closed_forms_run_under_autograds_batched_gradients(name):
+    # torch.autograd.functional.jacobian(vectorize=True) runs each backward under vmap (is_grads_batched)
+    q = uniform(3, seed=15).requires_grad_()
+    assert torch.autograd.grad(BATCHED_GRADS[name](q).sum(), q)[0].shape == q.shape  # (the closed form runs)
+    fn = BATCHED_GRADS[name]
+    assert torch.allclose(torch.autograd.functional.jacobian(fn, q.detach(), vectorize=True),
+                          torch.autograd.functional.jacobian(fn, q.detach(), vectorize=False), atol=1e-13, rtol=0)

@@ -133,10 +133,11 @@ def _forms_gradient(grad: Tensor, forms: Tensor, conv: EulerConvention, saved) -
     # (dividing by inf: a pair can be non-zero where its norm underflows to 0)
     safe = torch.where(two_h > zero, two_h, constant("inf", torch.inf, two_h))
     g_t1_pair = forms[..., 0, :] * (g_two_h / safe).unsqueeze(-1)
-    g_forms = torch.cat((g_near_zero, g_pairs - g_near_zero, torch.zeros_like(g_pairs[..., :1, :])), dim=-2)
-    g_forms[..., 0, :] += g_t1_pair
-    g_forms[..., 4, 0] = g_z
-    return g_forms
+    # rows: t1's pair (near 0: the choice, plus 2h's share), the double angle near 0, t1's pair and
+    # the double angle near pi, (z, |abcd|^2)
+    g_near_pi = g_pairs - g_near_zero
+    return torch.stack((g_near_zero[..., 0, :] + g_t1_pair, g_near_zero[..., 1, :], *g_near_pi.unbind(-2),
+                        torch.stack((g_z, torch.zeros_like(g_z)), dim=-1)), dim=-2)
 
 
 def _plain(x: Tensor, conv: EulerConvention, eps: float, is_matrix: bool) -> Tensor:
@@ -151,14 +152,15 @@ def _forward(x: Tensor, conv: EulerConvention, eps: float, is_matrix: bool):
 
 def _backward(grad: Tensor, inputs, saved, conv: EulerConvention, eps: float, is_matrix: bool):
     (x,), (forms, *saved) = inputs, saved
-    g_forms = _forms_gradient(grad, forms, conv, saved).flatten(-2)
+    # (reshape, not flatten/unflatten: autograd's is_grads_batched vmap has no rule for those)
+    g_forms = _forms_gradient(grad, forms, conv, saved).reshape(forms.shape[:-2] + (10,))
     quat_transpose, matrix_transpose = _TABLES[conv.name][3]
     if is_matrix:
-        return ((g_forms @ constant("euler_R_layout_T_" + conv.name, matrix_transpose, x)).unflatten(-1, (3, 3)),)
+        return ((g_forms @ constant("euler_R_layout_T_" + conv.name, matrix_transpose, x)).reshape(x.shape),)
     # forms = F(q q^T) / s with s = |abcd|^2 = c |q|^2: the angles are scale-invariant, so the
     # gradient through s is 0 and d forms = dF / s; d(q q^T)/dq contracted with the symmetric
     # G is 2 G q (the table holds 2 / c)
-    g_outer = (g_forms @ constant("euler_q_layout_T_" + conv.name, quat_transpose, x)).unflatten(-1, (4, 4))
+    g_outer = (g_forms @ constant("euler_q_layout_T_" + conv.name, quat_transpose, x)).reshape(x.shape + (4,))
     return ((g_outer @ x.unsqueeze(-1)).squeeze(-1) / (x * x).sum(-1, keepdim=True),)
 
 
