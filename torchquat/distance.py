@@ -64,18 +64,26 @@ def quat_geodesic_distance_unchecked(q1: Tensor, q2: Tensor) -> Tensor:
 
 
 def _quat_distance_columnwise(q1: Tensor, q2: Tensor) -> Tensor:
-    """The same, column by column: fewer passes for large batches, and one fused vectorised loop
-    under ``torch.compile``."""
+    """The same distance from Lagrange's identity, column by column, with no normalisation: fewer
+    passes for large batches (39 against 57 ms per 1e6, eager), one fused loop under ``torch.compile``.
+
+    The 6 minors ``p_i q_j - p_j q_i`` have ``sum m^2 = |p|^2 |q|^2 - <p, q>^2``, so half the
+    distance is ``atan2(|m|, |<p, q>|)`` for any non-zero scale. Each minor keeps full absolute
+    precision at distance 0 (exactly 0 for equal inputs, where ``safe_sqrt``'s gradient is 0) and
+    ``<p, q>`` at pi (where ``abs``'s gradient is 0, the maximum's kink). ``sum m^2 + <p, q>^2`` is 0
+    only for a zero quaternion, which gives NaN.
+    """
     q1, q2 = torch.broadcast_tensors(q1, q2)
-    p, q = q1.unbind(-1), q2.unbind(-1)
-    inv_p = torch.rsqrt(sum(c * c for c in p))  # inf for a zero quaternion: 0 * inf = NaN
-    inv_q = torch.rsqrt(sum(c * c for c in q))
-    p = [c * inv_p for c in p]
-    q = [c * inv_q for c in q]
-    minus = safe_sqrt(sum((a - b) * (a - b) for a, b in zip(p, q)))  # gradient 0, not inf, at 0
-    plus = safe_sqrt(sum((a + b) * (a + b) for a, b in zip(p, q)))
-    # minimum/maximum split the gradient evenly at a tie (distance pi, a maximum): 0, as aminmax
-    return 4.0 * torch.atan2(torch.minimum(minus, plus), torch.maximum(minus, plus))
+    a, b = q1.unbind(-1), q2.unbind(-1)
+    minors = [a[i] * b[j] - a[j] * b[i] for i in range(4) for j in range(i + 1, 4)]
+    wedge2 = minors[0] * minors[0]
+    for m in minors[1:]:
+        wedge2 = torch.addcmul(wedge2, m, m)
+    dot = a[0] * b[0]
+    for i in range(1, 4):
+        dot = torch.addcmul(dot, a[i], b[i])
+    distance = 2.0 * torch.atan2(safe_sqrt(wedge2), dot.abs())
+    return torch.where(torch.addcmul(wedge2, dot, dot) > 0, distance, torch.nan)
 
 
 def quat_geodesic_distance(q1: Tensor, q2: Tensor) -> Tensor:
