@@ -23,7 +23,7 @@ from torch import Tensor
 from ._euler_forms import forms_tables
 from . import _closed_form as closed_form
 from ._closed_form import Rule
-from ._math import constant
+from ._math import constant, zero_to_inf
 from .conventions import EULER_CONVENTIONS, EulerConvention
 
 # (form, sign) of each pair's y and x; forms are numbered as in _euler_forms
@@ -129,10 +129,8 @@ def _forms_gradient(grad: Tensor, forms: Tensor, conv: EulerConvention, saved) -
         g_z = -g_z
     else:
         g_two_h = -g_two_h
-    # d 2h = (pair / 2h) . d pair; the unit vector is 0 where 2h = 0, as vector_norm's gradient
-    # (dividing by inf: a pair can be non-zero where its norm underflows to 0)
-    safe = torch.where(two_h > zero, two_h, constant("inf", torch.inf, two_h))
-    g_t1_pair = forms[..., 0, :] * (g_two_h / safe).unsqueeze(-1)
+    # d 2h = (pair / 2h) . d pair (0 where 2h = 0, as vector_norm's gradient)
+    g_t1_pair = forms[..., 0, :] * (g_two_h / zero_to_inf(two_h)).unsqueeze(-1)
     # rows: t1's pair (near 0: the choice, plus 2h's share), the double angle near 0, t1's pair and
     # the double angle near pi, (z, |abcd|^2)
     g_near_pi = g_pairs - g_near_zero

@@ -1,5 +1,7 @@
 """Small numerical helpers shared by the conversion modules."""
 
+import math
+
 import torch
 from torch import Tensor
 
@@ -12,6 +14,13 @@ def safe_sqrt(x2: Tensor) -> Tensor:
     """
     positive = x2 > 0
     return torch.where(positive, torch.sqrt(torch.where(positive, x2, 1.0)), 0.0)
+
+
+def zero_to_inf(x: Tensor) -> Tensor:
+    """``x`` with its zeros replaced by ``inf``: ``v / zero_to_inf(|v|)`` is the unit vector of ``v``,
+    and 0 (as ``vector_norm``'s gradient) where the norm is 0, also where it underflowed to 0 for a
+    non-zero ``v`` (a clamp to the smallest float would give a huge vector there)."""
+    return torch.where(x > constant("zero", 0.0, x), x, constant("inf", math.inf, x))
 
 
 def small_angle_threshold(dtype: torch.dtype) -> float:

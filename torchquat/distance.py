@@ -6,7 +6,7 @@ from torch import Tensor
 from . import _closed_form as closed_form
 from ._closed_form import Rule
 from ._dispatch import kernel
-from ._math import constant, is_small, safe_sqrt
+from ._math import constant, is_small, safe_sqrt, zero_to_inf
 from ._validation import prepare_pair, restore
 
 __all__ = ["quat_geodesic_distance", "matrix_geodesic_distance"]
@@ -44,10 +44,8 @@ def _quat_distance_backward(grad: Tensor, inputs, saved):
     # 0 at the tie (distance pi, a maximum), where aminmax splits the gradient evenly.
     v = n @ constant("swap_negate", ((0.0, -1.0), (1.0, 0.0)), n)  # (n1, -n0)
     dn = v * (torch.sign(v.sum(-1, keepdim=True)) * grad.unsqueeze(-1))
-    # dn = u . dC with u = C / |C|, or 0 for a zero chord (as vector_norm's gradient; a chord can
-    # be non-zero where its norm underflows to 0): dividing by inf gives that 0
-    safe = torch.where(n > constant("zero", 0.0, n), n, constant("inf", torch.inf, n))
-    g0, g1 = (chords * (dn / safe).unsqueeze(-1)).unbind(-2)
+    # dn = u . dC with u = C / |C|, or 0 for a zero chord (as vector_norm's gradient)
+    g0, g1 = (chords * (dn / zero_to_inf(n)).unsqueeze(-1)).unbind(-2)
     # C = (p - q, p + q). The sums are tangent only in exact arithmetic: near distance 0 the
     # rounding of |p| = 1 is amplified by n1 / n0, so the projection is not skipped.
     return _tangent(g0 + g1, p, r1), _tangent(g1 - g0, q, r2)

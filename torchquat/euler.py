@@ -148,12 +148,13 @@ def _slot_index(with_one: bool):
 _SLOT_INDEX = {with_one: _slot_index(with_one) for with_one in (False, True)}
 
 
-def _trig_outer_with_derivatives(angles: Tensor, with_one: bool, scale: float) -> Tensor:
-    """:func:`_trig_outer` of ``scale * angles`` (slot 0) and its derivatives with respect to each
-    angle (slots 1-3): ``(..., 3) -> (..., 4, 8 or 27)``. A trilinear form's derivative in one
-    angle is the same product with that angle's factors differentiated, so one outer product
-    gives the values and the Jacobian."""
-    factors = _trig_factors(angles * constant("half", 0.5, angles) if scale == 0.5 else angles, with_one)
+def _trig_outer_with_derivatives(angles: Tensor, with_one: bool, half: bool) -> Tensor:
+    """:func:`_trig_outer` of ``angles`` (or their halves, ``half``) in slot 0 and its derivatives
+    with respect to each angle in slots 1-3: ``(..., 3) -> (..., 4, 8 or 27)``. A trilinear form's
+    derivative in one angle is the same product with that angle's factors differentiated, so one
+    outer product gives the values and the Jacobian."""
+    scale = 0.5 if half else 1.0
+    factors = _trig_factors(angles * constant("half", 0.5, angles) if half else angles, with_one)
     order = constant(f"with_derivative_order_{with_one}", _WITH_DERIVATIVE_ORDER[with_one], factors, dtype=torch.long)
     k = factors.shape[-1]  # the derivatives (the second k numbers) carry the chain rule's scale
     sign = constant(f"with_derivative_sign_{with_one}_{scale!r}",
@@ -172,7 +173,7 @@ def _euler_to_quat_small(angles: Tensor, convention: EulerConvention) -> Tensor:
 
 
 def _euler_to_quat_with_jacobian(angles: Tensor, convention: EulerConvention):
-    rows = contract(_trig_outer_with_derivatives(angles, False, 0.5), "euler_signs_" + convention.name,
+    rows = contract(_trig_outer_with_derivatives(angles, False, half=True), "euler_signs_" + convention.name,
                     _SIGN_TABLES[convention.name])  # (..., 4, 4): q, then dq / d angle n
     rows = rows * torch.copysign(constant("one", 1.0, rows), rows[..., :1, :1])
     return rows[..., 0, :], rows[..., 1:, :]
@@ -236,7 +237,7 @@ def _euler_to_matrix_small(angles: Tensor, convention: EulerConvention) -> Tenso
 
 
 def _euler_to_matrix_with_jacobian(angles: Tensor, convention: EulerConvention):
-    rows = contract(_trig_outer_with_derivatives(angles, True, 1.0), "euler_matrix_" + convention.name,
+    rows = contract(_trig_outer_with_derivatives(angles, True, half=False), "euler_matrix_" + convention.name,
                     _MATRIX_TABLES[convention.name])  # (..., 4, 9): R, then dR / d angle n
     return rows[..., 0, :].unflatten(-1, (3, 3)), rows[..., 1:, :]
 
