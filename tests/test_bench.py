@@ -48,7 +48,7 @@ def test_bench_table_and_json(tmp_path, capsys):
 
     data = json.loads(path.read_text())
     assert set(data) == {"meta", "results", "summary", "agreement", "legend"}
-    assert data["meta"]["ns"] == [1, 10] and data["meta"]["threads"] == 1
+    assert data["meta"]["ns"] == [1, 10] and data["meta"]["threads"] == 1 and data["meta"]["device"] == "cpu"
     results = data["results"]
     mine = [r for r in results if r["impl"] == "torchquat"]
     assert {(r["op"], r["n"], r["pass"]) for r in mine} == {
@@ -106,6 +106,10 @@ def test_bad_arguments_exit_2(capsys):
     assert bench.main(["--ops", "no_such_op", "--allocator", "none"]) == 2
     assert bench.main(["--peers", "no_such_peer", "--allocator", "none"]) == 2
     assert "unknown" in capsys.readouterr().err
+    assert bench.main(["--device", "no_such_device", "--allocator", "none"]) == 2
+    assert "--device no_such_device" in capsys.readouterr().err
+    if not torch.cuda.is_available():
+        assert bench.main(["--device", "cuda", "--allocator", "none"]) == 2
 
 
 def test_floor_kernel_shapes():

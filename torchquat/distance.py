@@ -25,7 +25,7 @@ def _quat_distance_parts(q1: Tensor, q2: Tensor):
     q = q2 / r2
     chords = torch.stack((p - q, p + q), dim=-2)
     lengths = torch.linalg.vector_norm(chords, dim=-1)
-    shorter, longer = torch.aminmax(lengths, dim=-1)
+    shorter, longer = lengths.amin(-1), lengths.amax(-1)  # (aminmax has no derivative before torch 2.13)
     return torch.atan2(shorter, longer) * constant("four", 4.0, shorter), (p, q, r1, r2, chords, lengths)
 
 
@@ -41,7 +41,7 @@ def _tangent(g: Tensor, p: Tensor, r: Tensor) -> Tensor:
 def _quat_distance_backward(grad: Tensor, inputs, saved):
     p, q, r1, r2, chords, n = saved
     # With n0^2 + n1^2 = 4, d 4 atan2(min, max) = sigma (n1 dn0 - n0 dn1), sigma = sign(n1 - n0):
-    # 0 at the tie (distance pi, a maximum), where aminmax splits the gradient evenly.
+    # 0 at the tie (distance pi, a maximum), where amin and amax split the gradient evenly.
     v = n @ constant("swap_negate", ((0.0, -1.0), (1.0, 0.0)), n)  # (n1, -n0)
     dn = v * (torch.sign(v.sum(-1, keepdim=True)) * grad.unsqueeze(-1))
     # dn = u . dC with u = C / |C|, or 0 for a zero chord (as vector_norm's gradient)
@@ -73,13 +73,20 @@ def _quat_distance_columnwise(q1: Tensor, q2: Tensor) -> Tensor:
     """
     q1, q2 = torch.broadcast_tensors(q1, q2)
     a, b = q1.unbind(-1), q2.unbind(-1)
+    dot = a[0] * b[0]
+    for i in range(1, 4):
+        dot = torch.addcmul(dot, a[i], b[i])
+    if torch.compiler.is_compiling():
+        # Code generators contract a*b - c*d into fma(a, b, -(c*d)), which leaves c*d's rounding
+        # error (not 0) for equal inputs, and so an O(1) gradient at the kink instead of 0 (seen
+        # with Triton). With d = b -+ a, exactly 0 for b = +-a, the minors a_i d_j - a_j d_i are
+        # the same numbers and exactly 0 there, contracted or not.
+        sign = torch.where(dot < 0, -1.0, 1.0)
+        b = [torch.addcmul(y, x, sign, value=-1.0) for x, y in zip(a, b)]
     minors = [a[i] * b[j] - a[j] * b[i] for i in range(4) for j in range(i + 1, 4)]
     wedge2 = minors[0] * minors[0]
     for m in minors[1:]:
         wedge2 = torch.addcmul(wedge2, m, m)
-    dot = a[0] * b[0]
-    for i in range(1, 4):
-        dot = torch.addcmul(dot, a[i], b[i])
     distance = 2.0 * torch.atan2(safe_sqrt(wedge2), dot.abs())
     return torch.where(torch.addcmul(wedge2, dot, dot) > 0, distance, torch.nan)
 

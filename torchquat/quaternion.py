@@ -230,7 +230,9 @@ def quat_slerp(q0: Tensor, q1: Tensor, t: Union[float, Tensor]) -> Tensor:
         tensor([0.7071, 0.0000, 0.0000, 0.7071])
     """
     q0, q1, dtype = prepare_pair("quat_slerp", ("q0", "q1"), q0, q1, (4,), (4,))
-    t = torch.as_tensor(t, dtype=q0.dtype, device=q0.device).unsqueeze(-1)
+    # a Python number is filled in on the device (as_tensor would copy it from the host, a sync)
+    t = (torch.as_tensor(t, dtype=q0.dtype, device=q0.device) if isinstance(t, torch.Tensor)
+         else torch.full((), t, dtype=q0.dtype, device=q0.device)).unsqueeze(-1)
     q1 = torch.where((q0 * q1).sum(-1, keepdim=True) < 0, -q1, q1)
     diff2 = ((q0 - q1) ** 2).sum(-1, keepdim=True)
     summ2 = ((q0 + q1) ** 2).sum(-1, keepdim=True)

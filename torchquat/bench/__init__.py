@@ -42,6 +42,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
                         help="peers to time, if installed (default: all): " + " ".join(_ops.PEER_NAMES)
                         + "; 'none' for torchquat alone")
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default: 1)")
+    parser.add_argument("--device", default="cpu",
+                        help="where the tensors live: cpu (default) or cuda; on a GPU the timer "
+                        "synchronizes the device around each measurement, and SciPy (NumPy, host "
+                        "memory) is left out")
     parser.add_argument("--dtype", choices=sorted(_DTYPES), default="float32", help="default: float32")
     parser.add_argument("--backward", action=argparse.BooleanOptionalAction, default=True,
                         help="also time forward+backward (default: on)")
@@ -76,7 +80,7 @@ def _callable(impl: _ops.Impl, inputs, backward: bool, seed: int):
     out = impl.fn(*leaves)
     outs = tuple(out) if isinstance(out, (tuple, list)) else (out,)
     g = torch.Generator().manual_seed(seed)
-    grads = tuple(torch.randn(tuple(o.shape), generator=g, dtype=o.dtype) for o in outs)
+    grads = tuple(torch.randn(tuple(o.shape), generator=g, dtype=o.dtype).to(o.device) for o in outs)
     del out, outs
 
     def step():
@@ -111,6 +115,15 @@ def run(args: argparse.Namespace) -> int:
     if any(n < 1 for n in ns):
         print("torchquat bench: --n values must be >= 1", file=sys.stderr)
         return 2
+    try:
+        device = torch.device(getattr(args, "device", "cpu"))
+        torch.empty(0, device=device)
+    except (RuntimeError, AssertionError) as exc:  # a misspelt device, or CUDA absent
+        print(f"torchquat bench: --device {getattr(args, 'device', 'cpu')}: {exc}".splitlines()[0], file=sys.stderr)
+        return 2
+    on_host = device.type == "cpu"
+    if not on_host:
+        peer_names = [p for p in peer_names if p != "scipy"]  # NumPy: its timing would be copies
     dtype = _DTYPES[getattr(args, "dtype", "float32")]
     threads = int(getattr(args, "threads", 1))
     min_run_time = float(getattr(args, "min_run_time", 0.2))
@@ -121,7 +134,8 @@ def run(args: argparse.Namespace) -> int:
     verbose = getattr(args, "progress", None)
     verbose = sys.stderr.isatty() if verbose is None else bool(verbose)
 
-    allocator = _timing.steady_allocator(getattr(args, "allocator", "auto"))  # may re-exec
+    allocator = (_timing.steady_allocator(getattr(args, "allocator", "auto")) if on_host  # may re-exec
+                 else f"allocator: PyTorch's {device.type} caching allocator (freed outputs are reused, never returned)")
     torch.set_num_threads(threads)
 
     peers = _ops.load_peers(peer_names)
@@ -131,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
     selected = [_ops.OPS_BY_NAME[name] for name in op_names]
 
     # Sanity check, once per (op, peer), on generic rotations away from gimbal lock.
-    check_inputs = _ops.make_check_inputs(dtype)
+    check_inputs = _ops.make_check_inputs(dtype, device=device)
     tol = 1e-3 if dtype == torch.float32 else 1e-6
     agreement, agrees = [], {}
     for op in selected:
@@ -153,7 +167,7 @@ def run(args: argparse.Namespace) -> int:
     done = 0
     started = time.perf_counter()
     for n in ns:
-        inputs = _ops.make_inputs(n, dtype, seed)
+        inputs = _ops.make_inputs(n, dtype, seed, device)
         for op in selected:
             done += 1
             _progress(f"[{done}/{total}] N={n} {op.name}", verbose)
@@ -194,7 +208,7 @@ def run(args: argparse.Namespace) -> int:
             in_width = sum(inputs[k][0].numel() for k in op.args)
             # the cheapest of three fresh preallocations: a large copy's time varies run to run
             # (where its pages land), and the floor is the cheapest pass
-            t = min((_timing.measure(_timing.floor_fn(n, in_width, tuple(out.shape[1:]), dtype), min_run_time, threads)
+            t = min((_timing.measure(_timing.floor_fn(n, in_width, tuple(out.shape[1:]), dtype, device), min_run_time, threads)
                      for _ in range(3)), key=lambda timing: timing.median)
             results.append({"op": op.name, "n": n, "pass": "fwd", "impl": _report.FLOOR, "agrees": None,
                             "call": "floor", "median_s": t.median, "iqr_s": t.iqr, "runs": t.runs, "error": None})
@@ -203,11 +217,13 @@ def run(args: argparse.Namespace) -> int:
     elapsed = time.perf_counter() - started
 
     import torchquat
+    where = (f"{threads} thread(s), {platform.machine()} {platform.processor() or ''} ({os.cpu_count()} CPUs)" if on_host
+             else f"{device.type} device {torch.cuda.get_device_name(device) if device.type == 'cuda' else device}")
     header = [
         "## torchquat bench",
         "",
-        f"torchquat {torchquat.__version__}, torch {torch.__version__}, {str(dtype).replace('torch.', '')}, {threads} thread(s), "
-        f"{platform.machine()} {platform.processor() or ''} ({os.cpu_count()} CPUs), Python {platform.python_version()}",
+        f"torchquat {torchquat.__version__}, torch {torch.__version__}, {str(dtype).replace('torch.', '')}, {where}, "
+        f"Python {platform.python_version()}",
         f"Medians of torch.utils.benchmark blocked_autorange(min_run_time={min_run_time}) (at least 3 "
         f"measurements); at N <= 10,000 the fastest such median of {rounds} round-robin round(s) over the "
         "implementations; fwd+bwd = the call plus torch.autograd.grad with a preallocated output gradient.",
@@ -253,7 +269,7 @@ def run(args: argparse.Namespace) -> int:
     json_path = getattr(args, "json", None)
     if json_path:
         meta = {"torchquat": torchquat.__version__, "torch": torch.__version__, "dtype": str(dtype),
-                "threads": threads, "ns": ns, "compiled": compiled, "min_run_time": min_run_time, "allocator": allocator,
+                "threads": threads, "device": str(device), "ns": ns, "compiled": compiled, "min_run_time": min_run_time, "allocator": allocator,
                 "floor_definition": _timing.FLOOR_DEFINITION, "machine": platform.platform(),
                 "cpus": os.cpu_count(), "python": platform.python_version(), "elapsed_s": elapsed,
                 "peers": {p.name: {"version": p.version, "import_s": p.import_s, "error": p.error} for p in peers}}

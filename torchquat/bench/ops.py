@@ -22,8 +22,9 @@ import torchquat as tq
 # inputs
 
 
-def make_inputs(n: int, dtype: torch.dtype, seed: int = 0) -> Dict[str, torch.Tensor]:
-    """Random rotations (uniform on SO(3)) and everything derived from them, shape ``(n, ...)``."""
+def make_inputs(n: int, dtype: torch.dtype, seed: int = 0, device="cpu") -> Dict[str, torch.Tensor]:
+    """Random rotations (uniform on SO(3)) and everything derived from them, shape ``(n, ...)``,
+    drawn on the CPU (the same rotations on every device) and moved to ``device``."""
     g = torch.Generator().manual_seed(seed)
     q = tq.random_quat(n, generator=g, dtype=torch.float64)
     q2 = tq.random_quat(n, generator=g, dtype=torch.float64)
@@ -38,7 +39,7 @@ def make_inputs(n: int, dtype: torch.dtype, seed: int = 0) -> Dict[str, torch.Te
         "v": torch.randn(n, 3, generator=g, dtype=torch.float64),
         "x6": torch.randn(n, 6, generator=g, dtype=torch.float64),  # any 6 numbers, not orthonormal
     }
-    return {k: t.to(dtype).contiguous() for k, t in data.items()}
+    return {k: t.to(device, dtype).contiguous() for k, t in data.items()}
 
 
 def _xyzw(q):
@@ -404,7 +405,7 @@ def check_agreement(op: Op, impl: Impl, inputs: Dict[str, torch.Tensor], tol: fl
     return err <= tol, err
 
 
-def make_check_inputs(dtype: torch.dtype, n: int = 256, seed: int = 12345) -> Dict[str, torch.Tensor]:
+def make_check_inputs(dtype: torch.dtype, n: int = 256, seed: int = 12345, device="cpu") -> Dict[str, torch.Tensor]:
     """Inputs for the sanity check: generic rotations, at least 10 degrees from gimbal lock in
     both Euler conventions, because libraries snap to the lock at different distances
     (PyPose within about 1.1 degrees, kornia within 0.04 degrees in float32) by design, and
@@ -416,4 +417,4 @@ def make_check_inputs(dtype: torch.dtype, n: int = 256, seed: int = 12345) -> Di
         (data["e_ZXZ"][:, 1] - math.pi / 2).abs() < math.radians(80.0)) & (
         (distance - math.pi / 2).abs() < math.radians(80.0))
     rows = keep.nonzero().squeeze(-1)[:n]
-    return {k: t[rows].to(dtype).contiguous() for k, t in data.items()}
+    return {k: t[rows].to(device, dtype).contiguous() for k, t in data.items()}

@@ -125,13 +125,14 @@ def measure(fn: Callable[[], object], min_run_time: float, threads: int, min_run
     return Timing(statistics.median(times), q[2] - q[0], len(times), len(times) * number)
 
 
-def floor_fn(n: int, in_width: int, out_shape: Sequence[int], dtype: torch.dtype) -> Callable[[], object]:
+def floor_fn(n: int, in_width: int, out_shape: Sequence[int], dtype: torch.dtype,
+             device="cpu") -> Callable[[], object]:
     """The memory-floor kernel for one op (see FLOOR_DEFINITION), preallocated."""
-    out = torch.empty((n,) + tuple(out_shape), dtype=dtype)
+    out = torch.empty((n,) + tuple(out_shape), dtype=dtype, device=device)
     out_width = max(1, math.prod(out_shape))
     k = max(1, math.ceil(in_width / out_width))
     if k == 1:
         src = torch.rand_like(out)
         return lambda: out.copy_(src)
-    planes = torch.rand((k,) + tuple(out.shape), dtype=dtype)
+    planes = torch.rand((k,) + tuple(out.shape), dtype=dtype, device=device)
     return lambda: torch.sum(planes, dim=0, out=out)
