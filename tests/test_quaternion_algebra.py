@@ -137,3 +137,14 @@ def test_convert_quaternion_outputs_are_standardized_and_rot9d_takes_matrices():
     assert torch.allclose(tq.convert(R, "rot9d", "matrix"), R, atol=1e-14)
     deg = tq.convert(R, "matrix", "euler", convention="XYZ", degrees=True)
     assert torch.allclose(deg, tq.matrix_to_euler(R, "XYZ") * 180 / math.pi)
+
+
+def test_slerp_takes_t_as_a_number_a_sequence_or_a_tensor():
+    import numpy as np
+
+    q0 = tq.random_quat(3, generator=torch.Generator().manual_seed(4), dtype=torch.float64)
+    q1 = tq.random_quat(3, generator=torch.Generator().manual_seed(5), dtype=torch.float64)
+    per_row = tq.quat_slerp(q0, q1, torch.tensor([0.25, 0.25, 0.25], dtype=torch.float64))
+    for t in (0.25, np.float64(0.25), [0.25, 0.25, 0.25], np.array([0.25, 0.25, 0.25]), torch.tensor(0.25)):
+        assert torch.allclose(tq.quat_slerp(q0, q1, t), per_row, atol=1e-15, rtol=0), type(t)
+    assert (tq.quat_slerp(q0, q1, 0) - q0).abs().max() <= 1e-15  # an int is a number too

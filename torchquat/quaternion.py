@@ -6,6 +6,7 @@ a quaternion from another representation standardise to ``w >= 0``.
 """
 
 import math
+import numbers
 from typing import Sequence, Union
 
 import torch
@@ -231,8 +232,8 @@ def quat_slerp(q0: Tensor, q1: Tensor, t: Union[float, Tensor]) -> Tensor:
     """
     q0, q1, dtype = prepare_pair("quat_slerp", ("q0", "q1"), q0, q1, (4,), (4,))
     # a Python number is filled in on the device (as_tensor would copy it from the host, a sync)
-    t = (torch.as_tensor(t, dtype=q0.dtype, device=q0.device) if isinstance(t, torch.Tensor)
-         else torch.full((), t, dtype=q0.dtype, device=q0.device)).unsqueeze(-1)
+    t = (torch.full((), float(t), dtype=q0.dtype, device=q0.device) if isinstance(t, numbers.Real)
+         else torch.as_tensor(t, dtype=q0.dtype, device=q0.device)).unsqueeze(-1)
     q1 = torch.where((q0 * q1).sum(-1, keepdim=True) < 0, -q1, q1)
     diff2 = ((q0 - q1) ** 2).sum(-1, keepdim=True)
     summ2 = ((q0 + q1) ** 2).sum(-1, keepdim=True)
