@@ -25,7 +25,7 @@ def _quat_distance_parts(q1: Tensor, q2: Tensor):
     q = q2 / r2
     chords = torch.stack((p - q, p + q), dim=-2)
     lengths = torch.linalg.vector_norm(chords, dim=-1)
-    shorter, longer = lengths.amin(-1), lengths.amax(-1)  # (aminmax has no derivative before torch 2.13)
+    shorter, longer = lengths.amin(-1), lengths.amax(-1)  # (torch 2.11's aminmax has no derivative)
     return torch.atan2(shorter, longer) * constant("four", 4.0, shorter), (p, q, r1, r2, chords, lengths)
 
 

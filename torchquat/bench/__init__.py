@@ -9,7 +9,7 @@ with "≠" and is never counted as the fastest peer.
 
 Usage::
 
-    torchquat bench [--n 1 1000 1000000] [--ops ...] [--peers ...] [--json FILE]
+    torchquat bench [--n 1 1000 1000000] [--ops ...] [--peers ...] [--device cuda] [--json FILE]
     python -m torchquat.bench ...
 """
 
