@@ -97,6 +97,36 @@ _OUTER_INDEX = {
     True: [3 * n + (u // 3 ** (2 - n)) % 3 for u in range(27) for n in range(3)],
 }
 
+# Entry j of an angle's factor row, then (after the k factors) of its derivative row, as
+# (which of the angle's (cos, sin), coefficient, offset): (1, cos, sin) and (0, -sin, cos), or
+# (cos, sin) and (-sin, cos). A 1 or a 0 is an offset on a coefficient of 0.
+_FACTOR_ENTRIES = {
+    True: ((0, 0.0, 1.0), (0, 1.0, 0.0), (1, 1.0, 0.0), (0, 0.0, 0.0), (1, -1.0, 0.0), (0, 1.0, 0.0)),
+    False: ((0, 1.0, 0.0), (1, 1.0, 0.0), (1, -1.0, 0.0), (0, 1.0, 0.0)),
+}
+
+
+def _gather_plan(with_one: bool, slots: bool, scale: float):
+    """The factors of every product of :func:`_outer_products`, as a gather from the three angles'
+    flattened ``(cos, sin)`` and a coefficient and offset each. ``slots``: four copies, copy
+    ``n + 1`` with angle n's factors replaced by their derivatives (times ``scale``, the chain
+    rule's factor for half angles)."""
+    k = 3 if with_one else 2
+    index, coefficient, offset = [], [], []
+    for slot in range(4 if slots else 1):
+        for flat in _OUTER_INDEX[with_one]:
+            n, j = divmod(flat, k)
+            derivative = slot == n + 1
+            trig, c, o = _FACTOR_ENTRIES[with_one][j + (k if derivative else 0)]
+            index.append(2 * n + trig)
+            coefficient.append(c * scale if derivative else c)
+            offset.append(o)
+    return index, coefficient, offset
+
+
+_GATHER_PLANS = {(with_one, slots, scale): _gather_plan(with_one, slots, scale)
+                 for with_one in (False, True) for slots, scale in ((False, 1.0), (True, 1.0), (True, 0.5))}
+
 
 def _products_of_triples(triples: Tensor) -> Tensor:
     """``(..., 3) -> (...)``: ``prod`` for a few rows (one dispatch instead of an ``unbind`` and two
@@ -109,63 +139,29 @@ def _products_of_triples(triples: Tensor) -> Tensor:
     return a * b * c
 
 
-def _outer(factors: Tensor, with_one: bool) -> Tensor:
-    """The outer product of the three angles' factor rows ``(..., 3, k) -> (..., k^3)``, flattened:
-    one gather of the factors and their products (fewer dispatches than broadcasting)."""
-    index = constant(f"outer_index_{with_one}", _OUTER_INDEX[with_one], factors, dtype=torch.long)
-    return _products_of_triples(factors.flatten(-2).index_select(-1, index).unflatten(-1, (-1, 3)))
+def _outer_products(angles: Tensor, with_one: bool, slots: bool = False, scale: float = 1.0) -> Tensor:
+    """The outer product over the three angles of their trig factors, ``(1, cos, sin)``
+    (``with_one``) or ``(cos, sin)``: ``(..., 3) -> (..., 27 or 8)``. With ``slots``, the values in
+    slot 0 and their derivatives with respect to each angle in slots 1-3, ``(..., 4, 27 or 8)``: a
+    trilinear form's derivative in one angle is the same product with that angle's factors
+    differentiated, so one outer product gives the values and the Jacobian.
 
-
-def _trig_factors(angles: Tensor, with_one: bool) -> Tensor:
-    """``(cos, sin)`` of each angle (``with_one``: ``(1, cos, sin)``): ``(..., 3) -> (..., 3, k)``."""
-    cs = torch.stack((torch.cos(angles), torch.sin(angles)), dim=-1)
-    return torch.nn.functional.pad(cs, (1, 0), value=1.0) if with_one else cs
-
-
-def _trig_outer(angles: Tensor, with_one: bool) -> Tensor:
-    """Outer product over the three angles of their trig factors: ``(..., 3) -> (..., 8)`` or ``(..., 27)``."""
-    return _outer(_trig_factors(angles, with_one), with_one)
-
-
-# Each angle's factor row and its derivative side by side: (cos, sin) -> (cos, sin, -sin, cos) and
-# (1, cos, sin) -> (1, cos, sin, 0, -sin, cos), a gather and a sign (times the angle's scale).
-_WITH_DERIVATIVE_ORDER = {False: (0, 1, 1, 0), True: (0, 1, 2, 0, 2, 1)}
-_WITH_DERIVATIVE_SIGN = {False: (1.0, 1.0, -1.0, 1.0), True: (1.0, 1.0, 1.0, 0.0, -1.0, 1.0)}
-
-
-def _slot_index(with_one: bool):
-    """Gather index for :func:`_outer` over four slots: slot 0 takes every angle's factors, slot
-    n + 1 takes angle n's derivatives instead (from rows of 2k: factors, then derivatives)."""
-    k = 3 if with_one else 2
-    index = []
-    for slot in range(4):
-        for flat in _OUTER_INDEX[with_one]:
-            n, j = divmod(flat, k)
-            index.append(2 * k * n + j + (k if n == slot - 1 else 0))
-    return index
-
-
-_SLOT_INDEX = {with_one: _slot_index(with_one) for with_one in (False, True)}
-
-
-def _trig_outer_with_derivatives(angles: Tensor, with_one: bool, half: bool) -> Tensor:
-    """:func:`_trig_outer` of ``angles`` (or their halves, ``half``) in slot 0 and its derivatives
-    with respect to each angle in slots 1-3: ``(..., 3) -> (..., 4, 8 or 27)``. A trilinear form's
-    derivative in one angle is the same product with that angle's factors differentiated, so one
-    outer product gives the values and the Jacobian."""
-    scale = 0.5 if half else 1.0
-    factors = _trig_factors(angles * constant("half", 0.5, angles) if half else angles, with_one)
-    order = constant(f"with_derivative_order_{with_one}", _WITH_DERIVATIVE_ORDER[with_one], factors, dtype=torch.long)
-    k = factors.shape[-1]  # the derivatives (the second k numbers) carry the chain rule's scale
-    sign = constant(f"with_derivative_sign_{with_one}_{scale!r}",
-                    [v * (scale if j >= k else 1.0) for j, v in enumerate(_WITH_DERIVATIVE_SIGN[with_one])], factors)
-    rows = factors.index_select(-1, order) * sign
-    index = constant(f"slot_index_{with_one}", _SLOT_INDEX[with_one], rows, dtype=torch.long)
-    return _products_of_triples(rows.flatten(-2).index_select(-1, index).unflatten(-1, (4, -1, 3)))
+    One gather from the ``(cos, sin)`` pairs and one ``addcmul`` (its 1s and 0s are offsets) make
+    every product's three factors: fewer dispatches than padding and gathering twice."""
+    key = (with_one, slots, scale)
+    index, coefficient, offset = _GATHER_PLANS[key]
+    cs = torch.stack((torch.cos(angles), torch.sin(angles)), dim=-1).flatten(-2)
+    factors = cs.index_select(-1, constant(f"euler_gather_{key}", index, cs, dtype=torch.long))
+    if with_one:
+        factors = torch.addcmul(constant(f"euler_offset_{key}", offset, cs), factors,
+                                constant(f"euler_coefficient_{key}", coefficient, cs))
+    elif slots:  # (no offsets; the derivatives' signs and scale)
+        factors = factors * constant(f"euler_coefficient_{key}", coefficient, cs)
+    return _products_of_triples(factors.unflatten(-1, (4, -1, 3) if slots else (-1, 3)))
 
 
 def _euler_to_quat_small(angles: Tensor, convention: EulerConvention) -> Tensor:
-    products = _trig_outer(angles * constant("half", 0.5, angles), with_one=False)
+    products = _outer_products(angles * constant("half", 0.5, angles), with_one=False)
     q = contract(products, "euler_signs_" + convention.name, _SIGN_TABLES[convention.name])
     # w >= 0 from w's sign alone (cheaper than standardize_sign; w == 0 exactly would need
     # a product of float cosines and sines to cancel exactly, and then either sign is right)
@@ -173,7 +169,8 @@ def _euler_to_quat_small(angles: Tensor, convention: EulerConvention) -> Tensor:
 
 
 def _euler_to_quat_with_jacobian(angles: Tensor, convention: EulerConvention):
-    rows = contract(_trig_outer_with_derivatives(angles, False, half=True), "euler_signs_" + convention.name,
+    rows = contract(_outer_products(angles * constant("half", 0.5, angles), False, slots=True, scale=0.5),
+                    "euler_signs_" + convention.name,
                     _SIGN_TABLES[convention.name])  # (..., 4, 4): q, then dq / d angle n
     rows = rows * torch.copysign(constant("one", 1.0, rows), rows[..., :1, :1])
     return rows[..., 0, :], rows[..., 1:, :]
@@ -232,12 +229,12 @@ def euler_to_quat(angles: Tensor, convention: str, degrees: bool = False) -> Ten
 
 def _euler_to_matrix_small(angles: Tensor, convention: EulerConvention) -> Tensor:
     # one trilinear form: the trig, a gather and the products, one matmul
-    R = contract(_trig_outer(angles, with_one=True), "euler_matrix_" + convention.name, _MATRIX_TABLES[convention.name])
+    R = contract(_outer_products(angles, with_one=True), "euler_matrix_" + convention.name, _MATRIX_TABLES[convention.name])
     return R.unflatten(-1, (3, 3))
 
 
 def _euler_to_matrix_with_jacobian(angles: Tensor, convention: EulerConvention):
-    rows = contract(_trig_outer_with_derivatives(angles, True, half=False), "euler_matrix_" + convention.name,
+    rows = contract(_outer_products(angles, True, slots=True), "euler_matrix_" + convention.name,
                     _MATRIX_TABLES[convention.name])  # (..., 4, 9): R, then dR / d angle n
     return rows[..., 0, :].unflatten(-1, (3, 3)), rows[..., 1:, :]
 
