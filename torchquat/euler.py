@@ -124,7 +124,8 @@ def _gather_plan(with_one: bool, slots: bool, scale: float):
     return index, coefficient, offset
 
 
-_GATHER_PLANS = {(with_one, slots, scale): _gather_plan(with_one, slots, scale)
+# (constant names formatted once: an f-string of the key costs 0.3 us a call)
+_GATHER_PLANS = {(with_one, slots, scale): (f"euler_gather_{with_one}_{slots}_{scale}", _gather_plan(with_one, slots, scale))
                  for with_one in (False, True) for slots, scale in ((False, 1.0), (True, 1.0), (True, 0.5))}
 
 
@@ -148,15 +149,13 @@ def _outer_products(angles: Tensor, with_one: bool, slots: bool = False, scale: 
 
     One gather from the ``(cos, sin)`` pairs and one ``addcmul`` (its 1s and 0s are offsets) make
     every product's three factors: fewer dispatches than padding and gathering twice."""
-    key = (with_one, slots, scale)
-    index, coefficient, offset = _GATHER_PLANS[key]
+    name, (index, coefficient, offset) = _GATHER_PLANS[(with_one, slots, scale)]
     cs = torch.stack((torch.cos(angles), torch.sin(angles)), dim=-1).flatten(-2)
-    factors = cs.index_select(-1, constant(f"euler_gather_{key}", index, cs, dtype=torch.long))
+    factors = cs.index_select(-1, constant(name, index, cs, dtype=torch.long))
     if with_one:
-        factors = torch.addcmul(constant(f"euler_offset_{key}", offset, cs), factors,
-                                constant(f"euler_coefficient_{key}", coefficient, cs))
+        factors = torch.addcmul(constant(name + "_offset", offset, cs), factors, constant(name + "_coefficient", coefficient, cs))
     elif slots:  # (no offsets; the derivatives' signs and scale)
-        factors = factors * constant(f"euler_coefficient_{key}", coefficient, cs)
+        factors = factors * constant(name + "_coefficient", coefficient, cs)
     return _products_of_triples(factors.unflatten(-1, (4, -1, 3) if slots else (-1, 3)))
 
 
