@@ -4,6 +4,8 @@ from pathlib import Path
 
 import pytest
 
+import torchquat
+
 
 @pytest.fixture(scope="session")
 def shared_data() -> Path:
@@ -12,3 +14,11 @@ def shared_data() -> Path:
     if not path.is_dir():
         pytest.skip(f"real pose files not found at {path} (they live outside the repository)")
     return path
+
+
+@pytest.fixture
+def compiled():
+    """The compiled kernels switched on for one test."""
+    torchquat.use_compiled_kernels(True)
+    yield
+    torchquat.use_compiled_kernels(False)

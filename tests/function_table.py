@@ -134,3 +134,19 @@ def assert_paths_agree(name, singular_inputs, out, ref, grads, ref_grads, atol, 
         assert same_output(name, out.nan_to_num(7.0), ref.nan_to_num(7.0), atol)
     grads, ref_grads = off_kink(name, ref, grads, ref_grads)
     assert all(torch.allclose(g, r, atol=grad_atol, rtol=grad_rtol) for g, r in zip(grads, ref_grads))
+
+
+def compiled_against_eager(fn, inputs):
+    """``fn``'s output and input gradients of ``out.sum()`` with the compiled kernels on (the
+    caller switches them on), then off: ``(out, grads, eager_out, eager_grads)``."""
+    leaves = tuple(x.detach().clone().requires_grad_() for x in inputs)
+    out = fn(*leaves)
+    grads = torch.autograd.grad(out.sum(), leaves)
+    tq.use_compiled_kernels(False)
+    try:
+        eager_leaves = tuple(x.detach().clone().requires_grad_() for x in inputs)
+        ref = fn(*eager_leaves)
+        ref_grads = torch.autograd.grad(ref.sum(), eager_leaves)
+    finally:
+        tq.use_compiled_kernels(True)
+    return out.detach(), grads, ref.detach(), ref_grads

@@ -4,7 +4,7 @@ import pytest
 import torch
 
 import torchquat as tq
-from function_table import ALL, assert_paths_agree
+from function_table import ALL, assert_paths_agree, compiled_against_eager
 
 # One representative per kernel; compiling all 100+ table entries would take minutes.
 # every kernel with a column-wise compiled form, and one of each other kind
@@ -13,26 +13,12 @@ KERNELS = ["quat_to_matrix", "matrix_to_quat", "quat_to_euler[zxz]", "quat_to_eu
            "quat_geodesic_distance", "matrix_geodesic_distance", "quat_rotate", "quat_multiply"]
 
 
-@pytest.fixture
-def compiled():
-    tq.use_compiled_kernels(True)
-    yield
-    tq.use_compiled_kernels(False)
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("name", KERNELS)
 def test_compiled_kernel_matches_eager_with_finite_gradients(name, compiled):
     fn, generic, singular = ALL[name]
     for make in (generic, singular):
-        inputs = tuple(x.clone().requires_grad_() for x in make())
-        out = fn(*inputs)
-        grads = torch.autograd.grad(out.sum(), inputs)
-        tq.use_compiled_kernels(False)
-        eager_inputs = tuple(x.detach().clone().requires_grad_() for x in inputs)
-        ref = fn(*eager_inputs)
-        ref_grads = torch.autograd.grad(ref.sum(), eager_inputs)
-        tq.use_compiled_kernels(True)
+        out, grads, ref, ref_grads = compiled_against_eager(fn, make())
         # the compiled kernels are the column-wise forms, eager small batches the table forms
         assert_paths_agree(name, make is singular, out, ref, grads, ref_grads, atol=1e-12, grad_atol=1e-9, grad_rtol=1e-9)
 

@@ -12,7 +12,7 @@ import torch
 
 import torchquat as tq
 import torchquat._math as tqmath
-from function_table import ALL, assert_paths_agree
+from function_table import ALL, assert_paths_agree, compiled_against_eager
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
 
@@ -129,13 +129,6 @@ def test_nn_modules_train_on_cuda():
                for p in parameters)
 
 
-@pytest.fixture
-def compiled():
-    tq.use_compiled_kernels(True)
-    yield
-    tq.use_compiled_kernels(False)
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["quat_to_matrix", "matrix_to_quat", "quat_to_euler[ZYX]", "matrix_to_euler[xzx]",
                                   "euler_to_quat[ZYZ]", "axis_angle_to_quat", "quat_to_axis_angle", "rot6d_to_matrix",
@@ -143,15 +136,8 @@ def compiled():
 def test_compiled_kernels_on_cuda_match_eager(name, compiled):
     fn, generic, singular = ALL[name]
     for make in (generic, singular):
-        inputs = tuple(x.cuda().requires_grad_() for x in make())
-        out = fn(*inputs)
-        grads = torch.autograd.grad(out.sum(), inputs)
-        tq.use_compiled_kernels(False)
-        eager_inputs = tuple(x.detach().clone().requires_grad_() for x in inputs)
-        ref = fn(*eager_inputs)
-        ref_grads = torch.autograd.grad(ref.sum(), eager_inputs)
-        tq.use_compiled_kernels(True)
-        assert_paths_agree(name, make is singular, out.detach().cpu(), ref.detach().cpu(), [g.cpu() for g in grads],
+        out, grads, ref, ref_grads = compiled_against_eager(fn, tuple(x.cuda() for x in make()))
+        assert_paths_agree(name, make is singular, out.cpu(), ref.cpu(), [g.cpu() for g in grads],
                            [g.cpu() for g in ref_grads], atol=1e-12, grad_atol=1e-9, grad_rtol=1e-9)
 
 
