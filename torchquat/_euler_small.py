@@ -38,20 +38,26 @@ def _layout_tables(name: str):
     quat = [[sign * row[form] for form, sign in _LAYOUT] for row in quat_table]
     matrix = [[sign * scale * row[form] for form, sign in _LAYOUT] for row in matrix_table]
     matrix_offset = [sign * scale * offset[form] for form, sign in _LAYOUT]
-    # for the backward: the tables transposed; the quaternion's times 2 / c with c = |abcd|^2 / |q|^2
-    transpose = ([[2.0 * v / offset[13] for v in column] for column in zip(*quat)],
-                 [list(column) for column in zip(*matrix)])
+    # for the backward: the tables transposed; the quaternion's times 2 (see _backward)
+    transpose = ([[2.0 * v for v in column] for column in zip(*quat)], [list(column) for column in zip(*matrix)])
     return quat, matrix, matrix_offset, transpose
 
 
 _TABLES = {name: _layout_tables(name) for name in EULER_CONVENTIONS}
 
 
-def quat_layout(q: Tensor, conv: EulerConvention) -> Tensor:
-    """The forms of ``q`` scaled by ``1 / |abcd|^2`` (scale-invariant angles; ``q = 0`` gives NaN)."""
+def _quat_layout_and_scale(q: Tensor, conv: EulerConvention):
+    """The forms of ``q`` scaled by ``1 / |abcd|^2`` (scale-invariant angles; ``q = 0`` gives NaN),
+    and ``|abcd|^2``, shaped ``(..., 1, 1)``."""
     unscaled = ((q.unsqueeze(-1) * q.unsqueeze(-2)).flatten(-2)
                 @ constant("euler_q_layout_" + conv.name, _TABLES[conv.name][0], q)).unflatten(-1, (5, 2))
-    return unscaled / unscaled[..., 4:, 1:]
+    scale = unscaled[..., 4:, 1:]
+    return unscaled / scale, scale
+
+
+def quat_layout(q: Tensor, conv: EulerConvention) -> Tensor:
+    """The forms of ``q`` scaled by ``1 / |abcd|^2`` (scale-invariant angles; ``q = 0`` gives NaN)."""
+    return _quat_layout_and_scale(q, conv)[0]
 
 
 def matrix_layout(R: Tensor, conv: EulerConvention) -> Tensor:
@@ -143,23 +149,24 @@ def _plain(x: Tensor, conv: EulerConvention, eps: float, is_matrix: bool) -> Ten
 
 
 def _forward(x: Tensor, conv: EulerConvention, eps: float, is_matrix: bool):
-    forms = matrix_layout(x, conv) if is_matrix else quat_layout(x, conv)
+    forms, scale = (matrix_layout(x, conv), x) if is_matrix else _quat_layout_and_scale(x, conv)
     result, saved = _angles(forms, conv, eps)
-    return result, (forms, *saved)
+    return result, (forms, scale, *saved)  # (a matrix's forms need no scale: x stands in)
 
 
 def _backward(grad: Tensor, inputs, saved, conv: EulerConvention, eps: float, is_matrix: bool):
-    (x,), (forms, *saved) = inputs, saved
+    (x,), (forms, scale, *saved) = inputs, saved
     # (reshape, not flatten/unflatten: autograd's is_grads_batched vmap has no rule for those)
     g_forms = _forms_gradient(grad, forms, conv, saved).reshape(forms.shape[:-2] + (10,))
     quat_transpose, matrix_transpose = _TABLES[conv.name][3]
     if is_matrix:
         return ((g_forms @ constant("euler_R_layout_T_" + conv.name, matrix_transpose, x)).reshape(x.shape),)
-    # forms = F(q q^T) / s with s = |abcd|^2 = c |q|^2: the angles are scale-invariant, so the
-    # gradient through s is 0 and d forms = dF / s; d(q q^T)/dq contracted with the symmetric
-    # G is 2 G q (the table holds 2 / c)
+    # forms = F(q q^T) / s with s = |abcd|^2: the angles are scale-invariant, so the gradient
+    # through s is 0 and d forms = dF / s; d(q q^T)/dq contracted with the symmetric G is 2 G q
+    # (the table holds the 2)
     g_outer = (g_forms @ constant("euler_q_layout_T_" + conv.name, quat_transpose, x)).reshape(x.shape + (4,))
-    return ((g_outer @ x.unsqueeze(-1)).squeeze(-1) / (x * x).sum(-1, keepdim=True),)
+    # (a broadcast product and sum: 3 dispatches where a batched matmul takes 6)
+    return ((g_outer * x.unsqueeze(-2)).sum(-1) / scale.squeeze(-1),)
 
 
 EULER_ANGLES = Rule(_plain, _forward, _backward)
