@@ -125,8 +125,9 @@ def _gather_plan(with_one: bool, slots: bool, scale: float):
 
 
 # (constant names formatted once: an f-string of the key costs 0.3 us a call)
-_GATHER_PLANS = {(with_one, slots, scale): (f"euler_gather_{with_one}_{slots}_{scale}", _gather_plan(with_one, slots, scale))
-                 for with_one in (False, True) for slots, scale in ((False, 1.0), (True, 1.0), (True, 0.5))}
+# The four in use: Euler -> quat (half angles; with the Jacobian, scale 0.5) and Euler -> matrix.
+_GATHER_PLANS = {key: (f"euler_gather_{key[0]}_{key[1]}_{key[2]}", _gather_plan(*key))
+                 for key in ((False, False, 1.0), (False, True, 0.5), (True, False, 1.0), (True, True, 1.0))}
 
 
 def _products_of_triples(triples: Tensor) -> Tensor:
