@@ -9,10 +9,11 @@ backward contracts the incoming gradient with them in one node.
 Only first derivatives take the closed form. Asked for a graph of the gradient (double backward),
 the backward differentiates the rule's plain forward by autograd, so higher derivatives stay
 exact. Under ``torch.func`` transforms and forward-mode AD, which a custom backward does not
-serve, the plain forward runs instead.
+serve, the plain forward runs instead. With nothing to differentiate, a rule's ``values`` (when
+it has one) runs: the same numbers without the substitutions that only keep autograd finite.
 """
 
-from typing import Callable, NamedTuple
+from typing import Callable, NamedTuple, Optional
 
 import torch
 from torch import Tensor
@@ -22,11 +23,13 @@ class Rule(NamedTuple):
     """``plain(*inputs, **options)``: the forward, differentiable by autograd;
     ``forward(*inputs, **options) -> (output, saved tensors)``: the same output, and what the
     backward needs; ``backward(grad, inputs, saved, **options) -> gradients`` (one per input, in
-    each input's broadcast batch shape)."""
+    each input's broadcast batch shape); ``values(*inputs, **options)``, optional: the same
+    output bit for bit, with no autograd graph to keep finite (so fewer operations)."""
 
     plain: Callable
     forward: Callable
     backward: Callable
+    values: Optional[Callable] = None
 
 
 def jacobian_rule(plain: Callable, with_jacobian: Callable) -> Rule:
@@ -45,11 +48,15 @@ def jacobian_rule(plain: Callable, with_jacobian: Callable) -> Rule:
     return Rule(plain, forward, backward)
 
 
+def _transformed() -> bool:
+    """Whether ``torch.func`` transforms or forward-mode AD are active (they need the plain forward)."""
+    return torch._C._are_functorch_transforms_active() or getattr(torch.autograd.forward_ad, "_current_level", -1) >= 0
+
+
 def _closed_form_applies(inputs) -> bool:
     for x in inputs:  # (requires_grad first: the common no-grad call pays one attribute read)
         if x.requires_grad:
-            return (torch.is_grad_enabled() and not torch._C._are_functorch_transforms_active()
-                    and getattr(torch.autograd.forward_ad, "_current_level", -1) < 0)
+            return torch.is_grad_enabled() and not _transformed()
     return False
 
 
@@ -79,7 +86,10 @@ class _ClosedForm(torch.autograd.Function):
 
 
 def apply(rule: Rule, *inputs: Tensor, **options):
-    """``rule``'s output with its closed-form backward when autograd records, else ``rule.plain``."""
+    """``rule``'s output with its closed-form backward when autograd records; ``rule.plain`` under
+    transforms; else ``rule.values`` (or ``rule.plain`` if it has none)."""
     if _closed_form_applies(inputs):
         return _ClosedForm.apply(rule, options, *inputs)
+    if rule.values is not None and not _transformed():  # (here nothing records a graph)
+        return rule.values(*inputs, **options)
     return rule.plain(*inputs, **options)
