@@ -42,6 +42,21 @@ def test_closed_form_backward_matches_autograd_of_the_forward(convention, is_mat
     assert ((g_got - g_expected).abs() / (1.0 + g_expected.abs())).max() < 1e-12
 
 
+@pytest.mark.parametrize("rows", [1, 5, 40])
+@pytest.mark.parametrize("is_matrix", [False, True], ids=["quat", "matrix"])
+@pytest.mark.parametrize("convention", ["ZYX", "xyz", "ZXZ", "yzy"])
+def test_values_without_a_graph_equal_the_plain_forward_bit_for_bit(convention, is_matrix, rows):
+    # no-grad calls take the rule's `values` (atan2 of every pair, then a choice); autograd's plain
+    # forward chooses first: a user must get the same angles with and without requires_grad
+    conv, eps = EULER_CONVENTIONS[convention], 1e-7
+    q = torch.cat([all_singular(), uniform(40, seed=11)])[:rows] if rows < 40 else _samples()[:rows]
+    x = tq.quat_to_matrix(q) if is_matrix else q
+    plain = _euler_small.angles(_layout(x.clone().requires_grad_(), conv, is_matrix), conv, eps).detach()
+    assert torch.equal(_euler_small.euler_angles(x, conv, eps, is_matrix), plain)
+    with torch.no_grad():
+        assert torch.equal(_euler_small.euler_angles(x.clone().requires_grad_(), conv, eps, is_matrix), plain)
+
+
 def test_the_public_functions_record_one_backward_node():
     q = tq.random_quat(3, generator=torch.Generator().manual_seed(0), dtype=torch.float64).requires_grad_()
     assert type(tq.quat_to_euler(q, "ZYX").grad_fn).__name__ == "_ClosedFormBackward"
