@@ -20,9 +20,9 @@ __all__ = ["use_compiled_kernels", "compiled_kernels_enabled", "kernel"]
 
 _enabled = os.environ.get("TORCHQUAT_COMPILE", "0").lower() in ("1", "true", "yes", "on")
 _compiled: Dict[Tuple, Callable] = {}
-_backend = "inductor"
+_backend = "inductor"  # tests swap in "eager" to check tracing and caching without compiling C++
 # one flag read instead of a device lookup and a per-device query (0.5 us a call at one rotation)
-_any_autocast = getattr(torch._C, "_is_any_autocast_enabled", lambda: True)  # tests swap in "eager" to check tracing and caching without compiling C++
+_any_autocast = getattr(torch._C, "_is_any_autocast_enabled", lambda: True)
 
 
 def use_compiled_kernels(enabled: bool = True) -> None:

@@ -4,9 +4,9 @@ and a closed-form backward.
 For a few rows every dispatch counts, in the forward and (more so) in autograd's backward, which
 runs one node per forward operation. So the forms (see ``torchquat._euler_forms``) come out of one
 matmul already laid out as four ``(y, x)`` pairs for one ``atan2``: ``t1``'s, the double angle
-used near middle 0, the one used near pi, and ``(Z, |abcd|^2)``. Both
-double angles are negated: ``atan2(-y, -x)`` is ``atan2(y, x) + pi`` modulo ``2 pi``, the shift
-that wrapping the third angle into ``[-pi, pi]`` needs anyway. Forms are scaled by
+used near middle 0, the one used near pi, and ``(Z, |abcd|^2)``. Both double angles are negated:
+``atan2(-y, -x)`` is ``atan2(y, x) + pi`` modulo ``2 pi``, the shift that wrapping the third angle
+into ``[-pi, pi]`` needs anyway. Forms are scaled by
 ``1 / |abcd|^2`` (a quaternion's at run time, a matrix's in the table), so ``2h`` is the sine of
 the middle angle, the gimbal-lock test is ``2h <= sin(eps)``, and the last pair's x is exactly 1.
 
