@@ -83,6 +83,20 @@ def test_the_public_function_takes_the_closed_form_backward(name):
         _assert_close(g.unsqueeze(-1), expected.unsqueeze(-1))
 
 
+@pytest.mark.parametrize("rows", [1, 7, 300, 3000])  # 3000: above the closed form's batches
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_values_without_a_graph_equal_the_plain_forward_bit_for_bit(name, rows):
+    # Nothing to differentiate: the rule's values path runs, without the substitutes that keep
+    # autograd finite (the series branch takes those rows). Same numbers with or without a graph.
+    plain, _, public, generic, singular = CASES[name]
+    x = torch.cat([singular(), generic(3000, seed=7)])[:rows]
+    expected = plain(x)
+    torch.testing.assert_close(public(x), expected, rtol=0, atol=0, equal_nan=True)
+    torch.testing.assert_close(public(x.clone().requires_grad_()).detach(), expected, rtol=0, atol=0, equal_nan=True)
+    with torch.no_grad():
+        torch.testing.assert_close(public(x.clone().requires_grad_()), expected, rtol=0, atol=0, equal_nan=True)
+
+
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_batches_above_the_closed_form_get_the_same_gradient(name):
     _, _, public, generic, _ = CASES[name]

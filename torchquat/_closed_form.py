@@ -32,7 +32,7 @@ class Rule(NamedTuple):
     values: Optional[Callable] = None
 
 
-def jacobian_rule(plain: Callable, with_jacobian: Callable) -> Rule:
+def jacobian_rule(plain: Callable, with_jacobian: Callable, values: Optional[Callable] = None) -> Rule:
     """A :class:`Rule` for a one-input row-wise kernel whose ``with_jacobian(x, **options)``
     returns the output and each row's Jacobian, shaped ``(..., x's row size, output's row size)``."""
 
@@ -45,7 +45,7 @@ def jacobian_rule(plain: Callable, with_jacobian: Callable) -> Rule:
         g = grad.reshape(jacobian.shape[:-2] + (1, jacobian.shape[-1]))
         return ((jacobian * g).sum(-1).view(inputs[0].shape),)
 
-    return Rule(plain, forward, backward)
+    return Rule(plain, forward, backward, values)
 
 
 def _transformed() -> bool:
@@ -90,6 +90,13 @@ def apply(rule: Rule, *inputs: Tensor, **options):
     transforms; else ``rule.values`` (or ``rule.plain`` if it has none)."""
     if _closed_form_applies(inputs):
         return _ClosedForm.apply(rule, options, *inputs)
-    if rule.values is not None and not _transformed():  # (here nothing records a graph)
+    return apply_without_closed_form(rule, *inputs, **options)
+
+
+def apply_without_closed_form(rule: Rule, *inputs: Tensor, **options):
+    """``rule.values`` when nothing records a graph and it has one, else ``rule.plain`` (for batches
+    where autograd's backward beats the closed form's)."""
+    if rule.values is not None and not _transformed() and not (
+            torch.is_grad_enabled() and any(x.requires_grad for x in inputs)):
         return rule.values(*inputs, **options)
     return rule.plain(*inputs, **options)

@@ -18,13 +18,14 @@ from .matrix import matrix_to_quat_unchecked
 __all__ = ["axis_angle_to_quat", "quat_to_axis_angle", "axis_angle_to_matrix", "matrix_to_axis_angle"]
 
 
-def _half_angle(v: Tensor):
-    """``theta``, the small-angle mask, ``theta`` with 1 there, ``theta / 2`` of that, and
+def _half_angle(v: Tensor, for_autograd: bool = True):
+    """``theta``, the small-angle mask, ``theta`` with 1 there (for autograd; values need no
+    substitute: where a closed form would be NaN the series is taken), ``theta / 2`` of that, and
     ``cos(theta / 2)``, ``sin(theta / 2) / theta``."""
     theta = torch.linalg.vector_norm(v, dim=-1, keepdim=True)  # gradient 0 (not NaN) at v = 0
     # Below theta^2 = sqrt(eps) the next series terms (theta^4/384, theta^4/3840) are under eps.
     small = theta < constant("axis_angle_small", small_angle_threshold(v.dtype) ** 0.5, v)
-    theta_safe = torch.where(small, constant("one", 1.0, v), theta)  # what the closed form sees there
+    theta_safe = torch.where(small, constant("one", 1.0, v), theta) if for_autograd else theta
     half = theta_safe * constant("half", 0.5, v)
     cos_half = torch.where(small, torch.addcmul(constant("one", 1.0, v), theta, theta, value=-0.125), torch.cos(half))
     sinc_half = torch.where(small, torch.addcmul(constant("half", 0.5, v), theta, theta, value=-1.0 / 48.0),
@@ -32,10 +33,14 @@ def _half_angle(v: Tensor):
     return theta, small, theta_safe, half, cos_half, sinc_half
 
 
-def _axis_angle_to_quat_small(v: Tensor) -> Tensor:
-    _, _, _, _, cos_half, sinc_half = _half_angle(v)
+def _axis_angle_to_quat_small(v: Tensor, for_autograd: bool = True) -> Tensor:
+    _, _, _, _, cos_half, sinc_half = _half_angle(v, for_autograd)
     # w >= 0: cos(theta / 2) of a float angle is never exactly 0, so its sign alone decides.
     return torch.cat((cos_half, v * sinc_half), dim=-1) * torch.copysign(constant("one", 1.0, v), cos_half)
+
+
+def _axis_angle_to_quat_values(v: Tensor) -> Tensor:
+    return _axis_angle_to_quat_small(v, for_autograd=False)
 
 
 # (..., 3, 4) Jacobian rows: d q / d v_i. Row i is s e_{i+1} plus v_i times (-s / 2, t v) with
@@ -57,7 +62,7 @@ def _axis_angle_to_quat_with_jacobian(v: Tensor):
     return q, jacobian * sign.unsqueeze(-1)
 
 
-_AXIS_ANGLE_TO_QUAT = jacobian_rule(_axis_angle_to_quat_small, _axis_angle_to_quat_with_jacobian)
+_AXIS_ANGLE_TO_QUAT = jacobian_rule(_axis_angle_to_quat_small, _axis_angle_to_quat_with_jacobian, _axis_angle_to_quat_values)
 
 
 @kernel
@@ -68,7 +73,7 @@ def axis_angle_to_quat_unchecked(v: Tensor) -> Tensor:
     # (..., 3, 4) products cost more per row.
     if is_small(v, 3, share=0.25):
         return closed_form.apply(_AXIS_ANGLE_TO_QUAT, v)
-    return _axis_angle_to_quat_small(v)
+    return closed_form.apply_without_closed_form(_AXIS_ANGLE_TO_QUAT, v)
 
 
 def axis_angle_to_quat(v: Tensor) -> Tensor:
@@ -91,9 +96,11 @@ def axis_angle_to_quat(v: Tensor) -> Tensor:
     return restore(axis_angle_to_quat_unchecked(v), dtype)
 
 
-def _axis_angle_scale(q: Tensor):
-    """``w`` (signed), ``u``, ``|w|``, ``|u|``, ``|u|`` with 1 where the series applies, and the factor
-    ``m`` (``angle / |u|``, signed by the hemisphere) of ``u`` in the rotation vector ``m u``."""
+def _axis_angle_scale(q: Tensor, for_autograd: bool = True):
+    """``w`` (signed), ``u``, ``|w|``, ``|u|``, ``|u|`` with 1 where the series applies (for
+    autograd; values need no substitutes: where a closed form would be NaN or inf the other is
+    taken), and the factor ``m`` (``angle / |u|``, signed by the hemisphere) of ``u`` in the
+    rotation vector ``m u``."""
     # shortest arc: use the w >= 0 copy (at w == 0 both copies are half turns, either is right)
     w0, u = q.narrow(-1, 0, 1), q.narrow(-1, 1, 3)
     hemisphere = torch.copysign(constant("two", 2.0, q), w0)  # the factor 2 of the angle, signed
@@ -103,15 +110,21 @@ def _axis_angle_scale(q: Tensor):
     # r^2 = eps the limit 2 / w is exact to rounding. Above it the closed form is accurate, and
     # its gradient's cancellation costs at most eps / r relative, on a term of size r.
     small = n <= constant("sqrt_eps", torch.finfo(q.dtype).eps ** 0.5, q) * w
-    n_safe = torch.where(small, constant("one", 1.0, q), n)
-    w_safe = torch.where(small, w, constant("one", 1.0, q))  # w = 0 (a half turn) only reaches the closed form
+    n_safe, w_safe = n, w
+    if for_autograd:
+        n_safe = torch.where(small, constant("one", 1.0, q), n)
+        w_safe = torch.where(small, w, constant("one", 1.0, q))  # w = 0 (a half turn) only reaches the closed form
     scale = torch.where(small, torch.reciprocal(w_safe), torch.atan2(n_safe, w) / n_safe)
     return w0, u, w, n, n_safe, scale * hemisphere
 
 
-def _quat_to_axis_angle_small(q: Tensor) -> Tensor:
-    _, u, _, _, _, m = _axis_angle_scale(q)
+def _quat_to_axis_angle_small(q: Tensor, for_autograd: bool = True) -> Tensor:
+    _, u, _, _, _, m = _axis_angle_scale(q, for_autograd)
     return u * m
+
+
+def _quat_to_axis_angle_values(q: Tensor) -> Tensor:
+    return _quat_to_axis_angle_small(q, for_autograd=False)
 
 
 # (..., 4, 3) Jacobian rows of v = m(n, w) u, m = 2 sign(w0) atan2(n, w) / n, n = |u|, w = |w0|:
@@ -131,7 +144,7 @@ def _quat_to_axis_angle_with_jacobian(q: Tensor):
     return u * m, torch.addcmul(eye, column.unsqueeze(-1), u.unsqueeze(-2), value=-1.0)
 
 
-_QUAT_TO_AXIS_ANGLE = jacobian_rule(_quat_to_axis_angle_small, _quat_to_axis_angle_with_jacobian)
+_QUAT_TO_AXIS_ANGLE = jacobian_rule(_quat_to_axis_angle_small, _quat_to_axis_angle_with_jacobian, _quat_to_axis_angle_values)
 
 
 @kernel
@@ -140,7 +153,7 @@ def quat_to_axis_angle_unchecked(q: Tensor) -> Tensor:
         return _quat_to_axis_angle_columnwise(q)
     if is_small(q, 4, share=0.125):  # closed form vs autograd: crossover measured near 700 rows
         return closed_form.apply(_QUAT_TO_AXIS_ANGLE, q)
-    return _quat_to_axis_angle_small(q)
+    return closed_form.apply_without_closed_form(_QUAT_TO_AXIS_ANGLE, q)
 
 
 # Column by column: the same formulas on 1-D columns with Python-number constants. Under
