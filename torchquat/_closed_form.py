@@ -34,7 +34,8 @@ class Rule(NamedTuple):
 
 def jacobian_rule(plain: Callable, with_jacobian: Callable, values: Optional[Callable] = None) -> Rule:
     """A :class:`Rule` for a one-input row-wise kernel whose ``with_jacobian(x, **options)``
-    returns the output and each row's Jacobian, shaped ``(..., x's row size, output's row size)``."""
+    returns the output and each row's Jacobian, shaped ``(..., x's row size, output's row size)``;
+    ``values`` as in :class:`Rule`."""
 
     def forward(x, **options):
         y, jacobian = with_jacobian(x, **options)
