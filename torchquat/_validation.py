@@ -20,22 +20,23 @@ def shape_text(trailing: Sequence[int]) -> str:
     return "(..., " + ", ".join(str(n) for n in trailing) + ")"
 
 
-def prepare(x, fn: str, name: str, trailing: Sequence[int]) -> Tuple[Tensor, torch.dtype]:
+def prepare(x, fn: str, name: str, trailing: Tuple[int, ...]) -> Tuple[Tensor, torch.dtype]:
     """Check ``x`` and return it in the dtype to compute in, with the dtype to return.
 
     Raises ``TypeError`` for non-tensors of non-floating type and ``ShapeError`` when the
-    trailing dimensions are not ``trailing``. float16/bfloat16 are computed in float32.
+    trailing dimensions are not ``trailing`` (a tuple). float16/bfloat16 are computed in float32.
     """
     if not isinstance(x, Tensor):
         x = torch.as_tensor(x)
-    if not x.dtype.is_floating_point:
-        raise TypeError(f"{fn}: expected {name} to be a floating-point tensor, got dtype {x.dtype}")
-    n = len(trailing)
-    if x.dim() < n or tuple(x.shape[x.dim() - n:]) != tuple(trailing):
+    dtype = x.dtype
+    if not dtype.is_floating_point:
+        raise TypeError(f"{fn}: expected {name} to be a floating-point tensor, got dtype {dtype}")
+    # (a torch.Size equals a tuple; a shorter shape's slice is the whole, shorter shape)
+    if trailing and x.shape[-len(trailing):] != trailing:
         raise ShapeError(f"{fn}: expected {name} of shape {shape_text(trailing)}, got {tuple(x.shape)}")
-    if x.dtype in _HALF_DTYPES:
-        return x.float(), x.dtype
-    return x, x.dtype
+    if dtype in _HALF_DTYPES:
+        return x.float(), dtype
+    return x, dtype
 
 
 def restore(y: Tensor, dtype: torch.dtype) -> Tensor:
