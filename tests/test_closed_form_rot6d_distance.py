@@ -8,6 +8,7 @@ import pytest
 import torch
 
 import torchquat as tq
+import torchquat._math as tqmath
 from torchquat import distance, rot6d
 from rotation_samples import all_singular, cube_rotations, uniform
 
@@ -24,11 +25,21 @@ def _relative_error(got, expected):
     return ((got - expected).abs() / (1.0 + expected.abs())).max().item()
 
 
-def _check_distance(q1, q2, tol=1e-12):
+@pytest.fixture(params=["small", "large"])
+def distance_plain(request, monkeypatch):
+    """Each distance test runs on both rules: the small-batch chords and the large-batch minors
+    (Lagrange's identity), with the plain forward the public function must agree with."""
+    if request.param == "large":
+        monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 0)
+        return distance._quat_distance_columnwise
+    return distance._quat_distance_small
+
+
+def _check_distance(plain, q1, q2, tol=1e-12):
     """The public function's closed-form gradients against autograd through the plain forward."""
     grad = torch.randn(torch.broadcast_shapes(q1.shape, q2.shape)[:-1], dtype=F64,
                        generator=torch.Generator().manual_seed(11))
-    expected, g_expected = _grads(distance._quat_distance_small, (q1, q2), grad)
+    expected, g_expected = _grads(plain, (q1, q2), grad)
     leaves = [q1.clone().requires_grad_(), q2.clone().requires_grad_()]
     got = tq.quat_geodesic_distance(*leaves)
     assert type(got.grad_fn).__name__ == "_ClosedFormBackward"
@@ -47,35 +58,39 @@ def _turn(q, axis_angle):
 # ---------------------------------------------------------------- quat_geodesic_distance
 
 
-def test_quat_distance_rule_forward_is_the_plain_forward():
+@pytest.mark.parametrize("rule", ["_QUAT_DISTANCE", "_QUAT_DISTANCE_COLUMNWISE"])
+def test_quat_distance_rule_forward_is_the_plain_forward(rule, monkeypatch):
     q1, q2 = uniform(30, seed=1) * 2.0, uniform(30, seed=2) * 0.3
-    out, _ = distance._QUAT_DISTANCE.forward(q1, q2)
-    assert torch.equal(out, distance._QUAT_DISTANCE.plain(q1, q2))
+    rule = getattr(distance, rule)
+    out, _ = rule.forward(q1, q2)
+    assert torch.equal(out, rule.plain(q1, q2))
+    if rule is distance._QUAT_DISTANCE_COLUMNWISE:
+        monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 0)
     assert torch.equal(out, tq.quat_geodesic_distance(q1, q2))  # the no-grad path
 
 
-def test_quat_distance_gradient_generic_non_unit():
+def test_quat_distance_gradient_generic_non_unit(distance_plain):
     scale = torch.linspace(0.1, 10.0, 40, dtype=F64).unsqueeze(-1)
-    _check_distance(uniform(40, seed=3) * scale, uniform(40, seed=4) * scale.flip(0))
+    _check_distance(distance_plain, uniform(40, seed=3) * scale, uniform(40, seed=4) * scale.flip(0))
 
 
-def test_quat_distance_gradient_at_zero_distance_is_zero():
+def test_quat_distance_gradient_at_zero_distance_is_zero(distance_plain):
     q = uniform(20, seed=5)
     for other in (q, -2.0 * q, 0.5 * q):  # identical, q and -q, scaled
-        _check_distance(q, other)
+        _check_distance(distance_plain, q, other)
         leaf = q.clone().requires_grad_()
         (g,) = torch.autograd.grad(tq.quat_geodesic_distance(leaf, other).sum(), leaf)
         assert torch.equal(g, torch.zeros_like(g))
 
 
-def test_quat_distance_gradient_at_pi():
+def test_quat_distance_gradient_at_pi(distance_plain):
     q = uniform(20, seed=6)
     axis = torch.tensor([0.0, 0.6, 0.0, -0.8], dtype=F64)  # a pure quaternion: a half turn
-    _check_distance(q, tq.quat_multiply(q, axis.expand(20, 4)))
+    _check_distance(distance_plain, q, tq.quat_multiply(q, axis.expand(20, 4)))
     # exact ties of the two chords (distance exactly pi: the gradient is 0 there)
     p = torch.tensor([[1.0, 0.0, 0.0, 0.0], [0.5, 0.5, 0.5, 0.5]], dtype=F64)
     q = torch.tensor([[0.0, 1.0, 0.0, 0.0], [0.5, -0.5, 0.5, -0.5]], dtype=F64)
-    _check_distance(p, 3.0 * q)
+    _check_distance(distance_plain, p, 3.0 * q)
     leaf = p.clone().requires_grad_()
     out = tq.quat_geodesic_distance(leaf, q)
     assert torch.equal(out, torch.full_like(out, math.pi))
@@ -84,39 +99,39 @@ def test_quat_distance_gradient_at_pi():
 
 
 @pytest.mark.parametrize("angle", [1e-12, 1e-9, 1e-6, math.pi - 1e-9, math.pi - 1e-6])
-def test_quat_distance_gradient_near_zero_and_pi(angle):
+def test_quat_distance_gradient_near_zero_and_pi(angle, distance_plain):
     q = uniform(30, seed=7) * 1.7
     axis = torch.randn(30, 3, dtype=F64, generator=torch.Generator().manual_seed(8))
     near = _turn(q, axis / axis.norm(dim=-1, keepdim=True) * angle)
-    _check_distance(q, near)
-    _check_distance(q, -0.25 * near)
+    _check_distance(distance_plain, q, near)
+    _check_distance(distance_plain, q, -0.25 * near)
 
 
-def test_quat_distance_gradient_at_singular_sets_and_cube_pairs():
+def test_quat_distance_gradient_at_singular_sets_and_cube_pairs(distance_plain):
     s = all_singular()
-    _check_distance(s, s.flip(0) * 1.5)
-    _check_distance(s, s.roll(1, 0))
+    _check_distance(distance_plain, s, s.flip(0) * 1.5)
+    _check_distance(distance_plain, s, s.roll(1, 0))
     cube = tq.matrix_to_quat(cube_rotations())  # every pair: 0, 90, 120, 180 degrees, exact ties
-    _check_distance(cube.unsqueeze(1), cube.unsqueeze(0))
+    _check_distance(distance_plain, cube.unsqueeze(1), cube.unsqueeze(0))
 
 
-def test_quat_distance_gradient_when_a_chord_norm_underflows():
+def test_quat_distance_gradient_when_a_chord_norm_underflows(distance_plain):
     # |p - q| squares to 0: vector_norm says 0 and its gradient is 0, not C / 0
     p = torch.tensor([1.0, 5e-201, 0.0, 0.0], dtype=F64)
     q = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=F64)
-    _check_distance(p, q)
-    _check_distance(p, -q)
+    _check_distance(distance_plain, p, q)
+    _check_distance(distance_plain, p, -q)
 
 
 @pytest.mark.parametrize("shapes", [((6, 4), (1, 4)), ((4,), (6, 4)), ((6, 4), (4,)), ((2, 1, 4), (3, 4)), ((4,), (4,))])
-def test_quat_distance_gradient_broadcasts(shapes):
+def test_quat_distance_gradient_broadcasts(shapes, distance_plain):
     g = torch.Generator().manual_seed(9)
     q1 = torch.randn(shapes[0], dtype=F64, generator=g)
     q2 = torch.randn(shapes[1], dtype=F64, generator=g)
-    _check_distance(q1, q2)
+    _check_distance(distance_plain, q1, q2)
 
 
-def test_quat_distance_double_backward():
+def test_quat_distance_double_backward(distance_plain):
     g = torch.Generator().manual_seed(10)
     q1 = (torch.randn(3, 4, dtype=F64, generator=g)).requires_grad_()
     q2 = (torch.randn(3, 4, dtype=F64, generator=g)).requires_grad_()
@@ -125,11 +140,11 @@ def test_quat_distance_double_backward():
     assert torch.autograd.gradgradcheck(tq.quat_geodesic_distance, (q1, q3))
 
 
-def test_quat_distance_float32_gradient_matches_float64():
+def test_quat_distance_float32_gradient_matches_float64(distance_plain):
     q1, q2 = uniform(10, seed=12), uniform(10, seed=13)
     leaves = [q1.float().requires_grad_(), q2.float().requires_grad_()]
     g32 = torch.autograd.grad(tq.quat_geodesic_distance(*leaves).sum(), leaves)
-    g64 = _grads(distance._quat_distance_small, (q1, q2), torch.ones(10, dtype=F64))[1]
+    g64 = _grads(distance_plain, (q1, q2), torch.ones(10, dtype=F64))[1]
     for a, b in zip(g32, g64):
         assert a.dtype == torch.float32
         assert (a.double() - b).abs().max() < 1e-4

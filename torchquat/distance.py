@@ -56,12 +56,17 @@ _QUAT_DISTANCE = Rule(_quat_distance_small, _quat_distance_parts, _quat_distance
 
 @kernel
 def quat_geodesic_distance_unchecked(q1: Tensor, q2: Tensor) -> Tensor:
-    if not (is_small(q1, 4) and is_small(q2, 4)):
+    if is_small(q1, 4) and is_small(q2, 4):
+        return closed_form.apply(_QUAT_DISTANCE, q1, q2)
+    if torch.compiler.is_compiling():
         return _quat_distance_columnwise(q1, q2)
-    return closed_form.apply(_QUAT_DISTANCE, q1, q2)
+    return closed_form.apply(_QUAT_DISTANCE_COLUMNWISE, q1, q2)
 
 
-def _quat_distance_columnwise(q1: Tensor, q2: Tensor) -> Tensor:
+_MINOR_PAIRS = tuple((i, j) for i in range(4) for j in range(i + 1, 4))
+
+
+def _quat_distance_columnwise_parts(q1: Tensor, q2: Tensor):
     """The same distance from Lagrange's identity, column by column, with no normalisation: fewer
     passes for large batches (39 against 57 ms per 1e6, eager), one fused loop under ``torch.compile``.
 
@@ -69,7 +74,8 @@ def _quat_distance_columnwise(q1: Tensor, q2: Tensor) -> Tensor:
     distance is ``atan2(|m|, |<p, q>|)`` for any non-zero scale. Each minor keeps full absolute
     precision at distance 0 (exactly 0 for equal inputs, where ``safe_sqrt``'s gradient is 0) and
     ``<p, q>`` at pi (where ``abs``'s gradient is 0, the maximum's kink). ``sum m^2 + <p, q>^2`` is 0
-    only for a zero quaternion, which gives NaN.
+    only for a zero quaternion, which gives NaN. Returns the distance and what the closed-form
+    backward needs.
     """
     q1, q2 = torch.broadcast_tensors(q1, q2)
     a, b = q1.unbind(-1), q2.unbind(-1)
@@ -83,12 +89,51 @@ def _quat_distance_columnwise(q1: Tensor, q2: Tensor) -> Tensor:
         # the same numbers and exactly 0 there, contracted or not.
         sign = torch.where(dot < 0, -1.0, 1.0)
         b = [torch.addcmul(y, x, sign, value=-1.0) for x, y in zip(a, b)]
-    minors = [a[i] * b[j] - a[j] * b[i] for i in range(4) for j in range(i + 1, 4)]
+    minors = [a[i] * b[j] - a[j] * b[i] for i, j in _MINOR_PAIRS]
     wedge2 = minors[0] * minors[0]
     for m in minors[1:]:
         wedge2 = torch.addcmul(wedge2, m, m)
-    distance = 2.0 * torch.atan2(safe_sqrt(wedge2), dot.abs())
-    return torch.where(torch.addcmul(wedge2, dot, dot) > 0, distance, torch.nan)
+    wedge = safe_sqrt(wedge2)
+    distance = torch.where(torch.addcmul(wedge2, dot, dot) > 0, 2.0 * torch.atan2(wedge, dot.abs()), torch.nan)
+    return distance, (dot, wedge, wedge2, *minors)
+
+
+def _quat_distance_columnwise(q1: Tensor, q2: Tensor) -> Tensor:
+    return _quat_distance_columnwise_parts(q1, q2)[0]
+
+
+def _minor_contraction(minors, v, k: int):
+    """``sum_j M[k][j] v_j`` for the antisymmetric M of the minors (``M[i][j] = m_ij`` for ``i < j``),
+    as ``(s, sum)`` with the sum to be multiplied by the sign ``s``."""
+    terms = [(1.0, m, v[j]) if i == k else (-1.0, m, v[i]) for (i, j), m in zip(_MINOR_PAIRS, minors) if k in (i, j)]
+    sign, m, x = terms[0]
+    total = m * x
+    for s, m, x in terms[1:]:
+        total = torch.addcmul(total, m, x, value=s * sign)
+    return sign, total
+
+
+def _quat_distance_columnwise_backward(grad: Tensor, inputs, saved):
+    # theta = 2 atan2(W, |d|), W = |minors|, d = <a, b>: d theta = 2 (|d| dW - W sign(d) dd) / (W^2 + d^2),
+    # dW/da = M b / W and dW/db = -M a / W (the minors keep them accurate near distance 0, where
+    # |b|^2 a - d b would cancel); 0 at W = 0 (the kink, as safe_sqrt's) and at d = 0 (abs's).
+    dot, wedge, wedge2, *minors = saved
+    a, b = (x.unbind(-1) for x in torch.broadcast_tensors(*inputs))
+    c = grad * 2.0 / torch.addcmul(wedge2, dot, dot)
+    alpha = c * dot.abs() / zero_to_inf(wedge)
+    beta = c * wedge * torch.sign(dot)
+    alphas = {1.0: alpha, -1.0: -alpha}
+    g_a, g_b = [], []
+    for k in range(4):
+        sign, total = _minor_contraction(minors, b, k)
+        g_a.append(torch.addcmul(alphas[sign] * total, beta, b[k], value=-1.0))
+        sign, total = _minor_contraction(minors, a, k)
+        g_b.append(torch.addcmul(alphas[-sign] * total, beta, a[k], value=-1.0))
+    return torch.stack(g_a, dim=-1), torch.stack(g_b, dim=-1)
+
+
+_QUAT_DISTANCE_COLUMNWISE = Rule(_quat_distance_columnwise, _quat_distance_columnwise_parts,
+                                 _quat_distance_columnwise_backward)
 
 
 def quat_geodesic_distance(q1: Tensor, q2: Tensor) -> Tensor:
