@@ -1,6 +1,6 @@
-"""The closed-form backward passes of ``rot6d_to_matrix`` and ``quat_geodesic_distance``
-(torchquat._closed_form) against autograd through the same small-batch forward, at generic and
-singular inputs, and the double-backward path."""
+"""The closed-form backward passes of ``rot6d_to_matrix`` and ``quat_geodesic_distance`` (both
+of its rules: small-batch chords, large-batch minors) (torchquat._closed_form) against autograd
+through the same forward, at generic and singular inputs, and the double-backward path."""
 
 import math
 
