@@ -64,8 +64,8 @@ def check_broadcast(fn: str, names: Sequence[str], tensors: Sequence[Tensor],
             raise ShapeError(f"{fn}: expected {' and '.join(names)} with broadcastable batch shapes, got {got}")
 
 
-def prepare_pair(fn: str, names: Sequence[str], a, b, trailing_a: Sequence[int],
-                 trailing_b: Sequence[int]) -> Tuple[Tensor, Tensor, torch.dtype]:
+def prepare_pair(fn: str, names: Sequence[str], a, b, trailing_a: Tuple[int, ...],
+                 trailing_b: Tuple[int, ...]) -> Tuple[Tensor, Tensor, torch.dtype]:
     """:func:`prepare` both arguments of a two-argument function, check that their batch shapes
     broadcast, and promote them to one dtype; returns them and the dtype to return in."""
     a, dtype = prepare(a, fn, names[0], trailing_a)
