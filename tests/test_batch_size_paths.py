@@ -1,31 +1,63 @@
 """Small batches take few-operation paths (tables, small matmuls), large ones elementwise paths:
-both must give the same answers and finite gradients."""
+both must give the same answers and finite gradients. Large eager CPU batches come in two
+layouts, strided columns and, from ``PLANAR_ROWS`` rows, contiguous ones (``torchquat._planes``):
+each large-batch test runs on both."""
 
 import pytest
 import torch
 
 import torchquat as tq
 import torchquat._math as tqmath
+import torchquat._planes as _planes
 from function_table import ALL, BINARY, assert_paths_agree, singular_quats
 
 PATH_DEPENDENT = ["quat_to_matrix", "quat_multiply", "quat_rotate", "matrix_to_quat", "axis_angle_to_quat",
-                  "quat_geodesic_distance", "rot6d_to_matrix", "euler_to_quat[ZYZ]", "euler_to_quat[xzy]"] + [
+                  "quat_to_axis_angle", "quat_geodesic_distance", "matrix_geodesic_distance", "rot6d_to_matrix", "euler_to_quat[ZYZ]", "euler_to_quat[xzy]"] + [
     f"{fn}[{c}]" for fn in ("euler_to_matrix", "quat_to_euler", "matrix_to_euler") for c in ("ZYX", "xyz", "ZXZ", "yxy")]
 
 
+LAYOUTS = {"strided": 10**12, "planar": 0}
+
+
+@pytest.fixture(params=sorted(LAYOUTS))
+def large_batches(request, monkeypatch):
+    """A callable that sends every batch down the large-batch path, in the layout the test runs on."""
+    monkeypatch.setattr(tqmath, "PLANAR_ROWS", LAYOUTS[request.param])
+    return lambda: monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 0)
+
 
 @pytest.mark.parametrize("name", PATH_DEPENDENT)
-def test_small_and_large_batch_paths_agree(name, monkeypatch):
+def test_small_and_large_batch_paths_agree(name, large_batches, monkeypatch):
     fn, generic, singular = ALL[name]
     for make in (generic, singular):
         inputs = tuple(x.clone().requires_grad_() for x in make())
         small = fn(*inputs)
         g_small = torch.autograd.grad(small.sum(), inputs)
-        monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 0)
+        large_batches()
         large = fn(*inputs)
         g_large = torch.autograd.grad(large.sum(), inputs)
         monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 4096)
         assert_paths_agree(name, make is singular, small, large, g_small, g_large, atol=1e-14, grad_atol=1e-12)
+
+
+@pytest.mark.parametrize("name", PATH_DEPENDENT)
+def test_large_batch_paths_pass_gradcheck_and_gradgradcheck(name, large_batches):
+    fn, generic, _ = ALL[name]
+    large_batches()
+    inputs = tuple(x[:3].clone().requires_grad_() for x in generic())
+    assert torch.autograd.gradcheck(fn, inputs)
+    assert torch.autograd.gradgradcheck(fn, inputs)
+
+
+def test_planar_columns_and_rows_round_trip_exactly(monkeypatch):
+    # the identity matmuls must move numbers without rounding: tiny, huge, subnormal, signed
+    monkeypatch.setattr(tqmath, "PLANAR_ROWS", 0)
+    x = torch.tensor([[1e-38, -3e38, 1.0 + 2**-23, 5e-45], [-0.1, 7.0, -1e-30, 2.0**-126]])
+    for dtype in (torch.float32, torch.float64):
+        v = x.to(dtype)
+        cols = _planes.columns(v)
+        assert all(c.is_contiguous() for c in cols) and torch.equal(torch.stack(cols, -1), v)
+        assert torch.equal(_planes.rows(cols), v) and _planes.rows(cols).is_contiguous()
 
 
 def test_a_batch_above_the_threshold_matches_one_below():
@@ -37,12 +69,29 @@ def test_a_batch_above_the_threshold_matches_one_below():
     assert torch.allclose(tq.quat_multiply(q, q.flip(0)), torch.cat([tq.quat_multiply(a, b) for a, b in zip(q.split(1000), q.flip(0).split(1000))]), atol=1e-15)
 
 
+def test_a_batch_on_contiguous_columns_matches_small_batches():
+    q = torch.cat([singular_quats(), tq.random_quat(tqmath.PLANAR_ROWS, generator=torch.Generator().manual_seed(1), dtype=torch.float64)])
+    v = torch.randn(q.shape[0], 3, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
+    R = tq.quat_to_matrix(q)
+    for fn, args in ((tq.quat_to_matrix, (q,)), (tq.quat_multiply, (q, q.flip(0))), (tq.quat_rotate, (q, v)),
+                     (tq.quat_to_euler, (q, "ZXZ")), (tq.matrix_to_euler, (R, "xyz")), (tq.euler_to_matrix, (v, "ZYX")),
+                     (tq.matrix_geodesic_distance, (R, R.flip(0))), (tq.quat_geodesic_distance, (q, q.flip(0)))):
+        tensors = [a for a in args if isinstance(a, torch.Tensor)]
+        whole = fn(*args)
+        pieces = torch.cat([fn(*chunk, *args[len(tensors):]) for chunk in zip(*(t.split(1000) for t in tensors))])
+        if fn.__name__.endswith("to_euler"):  # at lock and at +-pi the angles follow rounding, the rotation does not
+            whole, pieces = (tq.euler_to_matrix(a, args[-1]) for a in (whole, pieces))
+        assert torch.allclose(whole, pieces, atol=1e-13, rtol=0), fn.__name__
+
+
 @pytest.mark.parametrize("large", [False, True], ids=["small path", "large path"])
 @pytest.mark.parametrize("name", sorted(BINARY))
-def test_two_input_functions_broadcast_across_ranks(name, large, monkeypatch):
+@pytest.mark.parametrize("layout", sorted(LAYOUTS))
+def test_two_input_functions_broadcast_across_ranks(name, large, layout, monkeypatch):
     # one argument a single row without batch dims, the other a batch: as if the row were repeated
     fn, generic, _ = BINARY[name]
     a, b = generic()
+    monkeypatch.setattr(tqmath, "PLANAR_ROWS", LAYOUTS[layout])
     if large:
         monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 0)
     for single_first in (True, False):

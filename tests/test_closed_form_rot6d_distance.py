@@ -25,12 +25,14 @@ def _relative_error(got, expected):
     return ((got - expected).abs() / (1.0 + expected.abs())).max().item()
 
 
-@pytest.fixture(params=["small", "large"])
+@pytest.fixture(params=["small", "large", "large planar"])
 def distance_plain(request, monkeypatch):
     """Each distance test runs on both rules: the small-batch chords and the large-batch minors
-    (Lagrange's identity), with the plain forward the public function must agree with."""
-    if request.param == "large":
+    (Lagrange's identity, on strided and on contiguous columns), with the plain forward the public
+    function must agree with."""
+    if request.param.startswith("large"):
         monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 0)
+        monkeypatch.setattr(tqmath, "PLANAR_ROWS", 0 if request.param == "large planar" else 10**12)
         return distance._quat_distance_columnwise
     return distance._quat_distance_small
 

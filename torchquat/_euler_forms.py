@@ -11,11 +11,13 @@ columns: large batches and ``torch.compile``).
 """
 
 import math
+from typing import Optional
 
 import torch
 from torch import Tensor
 
 from ._math import safe_sqrt, sparse_columns
+from ._planes import rows
 from .conventions import EULER_CONVENTIONS, EulerConvention
 from .matrix import _SHEPPERD, _SHEPPERD_OFFSET, _SHEPPERD_ROWS
 
@@ -136,10 +138,11 @@ def _columnwise_tables(name: str):
 COLUMNWISE = {name: _columnwise_tables(name) for name in EULER_CONVENTIONS}
 
 
-def angles_columnwise(forms, conv: EulerConvention, eps: float) -> Tensor:
+def angles_columnwise(forms, conv: EulerConvention, eps: float, nan_where: Optional[Tensor] = None) -> Tensor:
     """The same angles as ``torchquat._euler_small``, written column by column with the tables'
     numbers as literals: for large batches (a handful of passes over 1-D columns instead of
-    strided pair tensors) and for ``torch.compile``, which fuses it into one vectorised loop."""
+    strided pair tensors) and for ``torch.compile``, which fuses it into one vectorised loop.
+    Rows where ``nan_where`` holds come out as NaN."""
     f = forms
     two_h = safe_sqrt(f[0] * f[0] + f[1] * f[1])
     ab2, cd2 = f[10], f[11]
@@ -169,6 +172,7 @@ def angles_columnwise(forms, conv: EulerConvention, eps: float) -> Tensor:
     double = torch.atan2(pick(f[2], f[4]), pick(f[3], f[5]))
     t3 = torch.addcmul(double, t1, step)  # D - tb t1 near 0, D + tb t1 near pi
     t3 = t3 - torch.round(t3 * (0.5 / math.pi)) * (2.0 * math.pi)  # into [-pi, pi], branch-free
-    if conv.intrinsic:
-        return torch.stack((t3, middle, t1), dim=-1)
-    return torch.stack((t1, middle, torch.where(locked, 0.0, t3)), dim=-1)
+    angles = (t3, middle, t1) if conv.intrinsic else (t1, middle, torch.where(locked, 0.0, t3))
+    if nan_where is not None:
+        angles = [torch.where(nan_where, torch.nan, a) for a in angles]
+    return rows(angles)

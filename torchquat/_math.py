@@ -16,6 +16,14 @@ def safe_sqrt(x2: Tensor) -> Tensor:
     return torch.where(positive, torch.sqrt(torch.where(positive, x2, 1.0)), 0.0)
 
 
+def sum_of_squares(columns) -> Tensor:
+    """``sum(c * c for c in columns)``, in one pass per column."""
+    total = columns[0] * columns[0]
+    for c in columns[1:]:
+        total = torch.addcmul(total, c, c)
+    return total
+
+
 def zero_to_inf(x: Tensor) -> Tensor:
     """``x`` with its zeros replaced by ``inf``: ``v / zero_to_inf(|v|)`` is the unit vector of ``v``,
     and 0 (as ``vector_norm``'s gradient) where the norm is 0, also where it underflowed to 0 for a
@@ -36,6 +44,12 @@ SMALL_BATCH_ROWS = 4096
 """Batches up to this many rows take the few-operation paths (constant tables and small matmuls),
 where per-operation dispatch dominates; larger ones take elementwise paths that make fewer passes
 over memory. Both give the same results to rounding; the tests run both."""
+
+PLANAR_ROWS = 32768
+"""Eager CPU batches from this many rows work on contiguous columns (``torchquat._planes``). The
+crossover, forward+backward, is 5,000-16,000 rows for the matrix kernels and the product, and
+16,000-50,000 for the Euler-angle and axis-angle ones (below, strided columns still sit in cache
+and the transposing matmuls and their backward nodes cost more than they save)."""
 
 
 def is_small(x: Tensor, row_numel: int, share: float = 1.0) -> bool:
@@ -88,6 +102,20 @@ def combine(columns, terms):
     else:
         total = torch.zeros_like(columns[0])
     return total + terms[1] if terms[1] else total
+
+
+def bilinear(a, b, table):
+    """Each column of ``table`` (rows indexed ``i * len(b) + j``) as ``sum_ij T[ij] a_i b_j``, from the
+    columns ``a`` and ``b``: one product and one ``addcmul`` per term, each a single pass."""
+    out = []
+    for terms, _ in sparse_columns(table):
+        (first, k), rest = terms[0], terms[1:]
+        total = a[first // len(b)] * b[first % len(b)]
+        total = total if k == 1 else total * k
+        for r, k in rest:
+            total = torch.addcmul(total, a[r // len(b)], b[r % len(b)], value=k)
+        out.append(total)
+    return out
 
 
 def contract(x: Tensor, name: str, values) -> Tensor:

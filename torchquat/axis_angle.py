@@ -11,7 +11,8 @@ from torch import Tensor
 from . import _closed_form as closed_form
 from ._closed_form import jacobian_rule
 from ._dispatch import kernel
-from ._math import constant, is_small, small_angle_threshold
+from ._math import constant, is_small, small_angle_threshold, sum_of_squares
+from ._planes import columns, rows
 from ._validation import prepare, restore
 from .matrix import matrix_to_quat_unchecked
 
@@ -162,8 +163,8 @@ def quat_to_axis_angle_unchecked(q: Tensor) -> Tensor:
 
 
 def _axis_angle_to_quat_columnwise(v: Tensor) -> Tensor:
-    x, y, z = v.unbind(-1)
-    theta2 = x * x + y * y + z * z
+    x, y, z = components = columns(v)
+    theta2 = sum_of_squares(components)
     small = theta2 < small_angle_threshold(v.dtype)
     theta = torch.sqrt(torch.where(small, 1.0, theta2))
     half = 0.5 * theta
@@ -171,19 +172,19 @@ def _axis_angle_to_quat_columnwise(v: Tensor) -> Tensor:
     sinc_half = torch.where(small, 0.5 - theta2 / 48.0, torch.sin(half) / theta)
     sign = torch.copysign(torch.ones_like(cos_half), cos_half)  # (an eager where on a random sign mispredicts)
     s = sinc_half * sign
-    return torch.stack((cos_half * sign, x * s, y * s, z * s), dim=-1)
+    return rows((cos_half * sign, x * s, y * s, z * s))
 
 
 def _quat_to_axis_angle_columnwise(q: Tensor) -> Tensor:
-    w, x, y, z = q.unbind(-1)
+    w, x, y, z = columns(q)
     hemisphere = torch.where(w < 0, -2.0, 2.0)
     w = w.abs()
-    n2 = x * x + y * y + z * z
+    n2 = sum_of_squares((x, y, z))
     small = n2 <= torch.finfo(q.dtype).eps * (w * w)
     n = torch.sqrt(torch.where(small, 1.0, n2))
     w_safe = torch.where(small, w, 1.0)
     scale = torch.where(small, 1.0 / w_safe, torch.atan2(n, w) / n) * hemisphere
-    return torch.stack((x * scale, y * scale, z * scale), dim=-1)
+    return rows((x * scale, y * scale, z * scale))
 
 
 def quat_to_axis_angle(q: Tensor) -> Tensor:

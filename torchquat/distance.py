@@ -6,7 +6,8 @@ from torch import Tensor
 from . import _closed_form as closed_form
 from ._closed_form import Rule
 from ._dispatch import kernel
-from ._math import constant, is_small, safe_sqrt, zero_to_inf
+from ._math import constant, is_small, safe_sqrt, sum_of_squares, zero_to_inf
+from ._planes import columns, planar, rows
 from ._validation import prepare_pair, restore
 
 __all__ = ["quat_geodesic_distance", "matrix_geodesic_distance"]
@@ -77,8 +78,7 @@ def _quat_distance_columnwise_parts(q1: Tensor, q2: Tensor):
     only for a zero quaternion, which gives NaN. Returns the distance and what the closed-form
     backward needs.
     """
-    q1, q2 = torch.broadcast_tensors(q1, q2)
-    a, b = q1.unbind(-1), q2.unbind(-1)
+    a, b = columns(q1), columns(q2)
     dot = a[0] * b[0]
     for i in range(1, 4):
         dot = torch.addcmul(dot, a[i], b[i])
@@ -118,7 +118,7 @@ def _quat_distance_columnwise_backward(grad: Tensor, inputs, saved):
     # dW/da = M b / W and dW/db = -M a / W (the minors keep them accurate near distance 0, where
     # |b|^2 a - d b would cancel); 0 at W = 0 (the kink, as safe_sqrt's) and at d = 0 (abs's).
     dot, wedge, wedge2, *minors = saved
-    a, b = (x.unbind(-1) for x in torch.broadcast_tensors(*inputs))
+    a, b = (columns(x) for x in inputs)
     c = grad * 2.0 / torch.addcmul(wedge2, dot, dot)
     alpha = c * dot.abs() / zero_to_inf(wedge)
     beta = c * wedge * torch.sign(dot)
@@ -129,7 +129,7 @@ def _quat_distance_columnwise_backward(grad: Tensor, inputs, saved):
         g_a.append(torch.addcmul(alphas[sign] * total, beta, b[k], value=-1.0))
         sign, total = _minor_contraction(minors, a, k)
         g_b.append(torch.addcmul(alphas[-sign] * total, beta, a[k], value=-1.0))
-    return torch.stack(g_a, dim=-1), torch.stack(g_b, dim=-1)
+    return rows(g_a), rows(g_b)
 
 
 _QUAT_DISTANCE_COLUMNWISE = Rule(_quat_distance_columnwise, _quat_distance_columnwise_parts,
@@ -165,7 +165,7 @@ def quat_geodesic_distance(q1: Tensor, q2: Tensor) -> Tensor:
 
 @kernel
 def matrix_geodesic_distance_unchecked(R1: Tensor, R2: Tensor) -> Tensor:
-    if torch.compiler.is_compiling():
+    if torch.compiler.is_compiling() or planar(R1, 9) or planar(R2, 9):
         return _matrix_distance_columnwise(R1, R2)
     if R1.dim() != R2.dim():  # linalg.cross broadcasts batch dims but needs equal ranks
         R1, R2 = torch.broadcast_tensors(R1, R2)
@@ -180,14 +180,23 @@ def matrix_geodesic_distance_unchecked(R1: Tensor, R2: Tensor) -> Tensor:
 
 
 def _matrix_distance_columnwise(R1: Tensor, R2: Tensor) -> Tensor:
-    """The same, column by column, for ``torch.compile`` (fuses into one vectorised loop)."""
-    R1, R2 = torch.broadcast_tensors(R1, R2)
-    a, b = R1.flatten(-2).unbind(-1), R2.flatten(-2).unbind(-1)
+    """The same, column by column: for large eager batches (contiguous columns: 45 passes of 1-D
+    columns beat ``linalg.cross`` and reductions over dimensions of 3) and for ``torch.compile``
+    (one fused vectorised loop)."""
+    a, b = columns(R1.flatten(-2)), columns(R2.flatten(-2))
     d = [y - x for x, y in zip(a, b)]
-    vee = [sum(a[3 * j + k] * d[3 * l + k] - a[3 * l + k] * d[3 * j + k] for k in range(3))
-           for j, l in ((1, 2), (2, 0), (0, 1))]  # sum over columns k of (R1 col k) x (d col k)
-    trace = sum(x * y for x, y in zip(a, b))
-    return torch.atan2(safe_sqrt(vee[0] * vee[0] + vee[1] * vee[1] + vee[2] * vee[2]), trace - 1.0)
+    vee = []
+    for j, l in ((1, 2), (2, 0), (0, 1)):  # sum over columns k of (R1 col k) x (d col k)
+        total = a[3 * j] * d[3 * l]
+        for k in range(3):
+            if k:
+                total = torch.addcmul(total, a[3 * j + k], d[3 * l + k])
+            total = torch.addcmul(total, a[3 * l + k], d[3 * j + k], value=-1.0)
+        vee.append(total)
+    trace = a[0] * b[0]
+    for x, y in zip(a[1:], b[1:]):
+        trace = torch.addcmul(trace, x, y)
+    return torch.atan2(safe_sqrt(sum_of_squares(vee)), trace - 1.0)
 
 
 def matrix_geodesic_distance(R1: Tensor, R2: Tensor) -> Tensor:

@@ -24,6 +24,7 @@ from ._dispatch import kernel
 from ._euler_forms import COLUMNWISE, PAIRS, angles_columnwise
 from ._euler_small import euler_angles, lock, matrix_layout, quat_layout
 from ._math import combine, constant, contract, is_small, sparse_columns
+from ._planes import columns, rows
 from ._validation import prepare, restore
 from .conventions import EULER_CONVENTIONS, EulerConvention, gimbal_eps, parse_convention
 from .matrix import quat_to_matrix_unchecked
@@ -182,13 +183,13 @@ _EULER_TO_QUAT = jacobian_rule(_euler_to_quat_small, _euler_to_quat_with_jacobia
 @kernel
 def euler_to_quat_unchecked(angles: Tensor, convention: EulerConvention) -> Tensor:
     if not is_small(angles, 3, share=0.25):  # column by column: fewer passes; under compile one fused loop
-        half = [0.5 * a for a in angles.unbind(-1)]
+        half = [0.5 * a for a in columns(angles)]
         cs = [(torch.cos(h), torch.sin(h)) for h in half]
         pairs = [u * v for u in cs[0] for v in cs[1]]
         products = [p * w for p in pairs for w in cs[2]]  # index 4 m1 + 2 m2 + m3, as the table's rows
         q = [combine(products, terms) for terms in _SIGN_COLUMNS[convention.name]]
         sign = torch.copysign(torch.ones_like(q[0]), q[0])  # w >= 0 (a where on w < 0 mispredicts)
-        return torch.stack([c * sign for c in q], dim=-1)
+        return rows([c * sign for c in q])
     if is_small(angles, 3, share=0.125):  # above ~500 rows the 4-slot outer product costs more than autograd saves
         return closed_form.apply(_EULER_TO_QUAT, angles, convention=convention)
     return _euler_to_quat_small(angles, convention)
@@ -282,18 +283,17 @@ def euler_to_matrix(angles: Tensor, convention: str, degrees: bool = False) -> T
 def quat_to_euler_unchecked(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
     if not is_small(q, 4, share=0.25):  # crossover measured near 1000 rows
         abcd_terms, pair_terms, _ = COLUMNWISE[convention.name]
-        columns = q.unbind(-1)  # once: under compile each unbind's backward is an (N, 4) buffer of its own
-        abcd = [combine(columns, terms) for terms in abcd_terms]
+        components = columns(q)  # once: under compile each unbind's backward is an (N, 4) buffer of its own
+        abcd = [combine(components, terms) for terms in abcd_terms]
         products = [abcd[u] * abcd[v] for u, v in PAIRS]
         forms = [combine(products, terms) for terms in pair_terms]
         # Every atan2 pair and the lock test are scale-invariant; only q = 0 (all forms 0) must
-        # come out as NaN, not a plausible (0, 0, 0). Eager: one where on the result (13 fewer
-        # passes); compiled: dividing by |abcd|^2 fuses for free, and a where on the result does not.
+        # come out as NaN, not a plausible (0, 0, 0). Eager: a where on each angle (13 fewer
+        # passes); compiled: dividing by |abcd|^2 fuses for free, and a where does not.
         if torch.compiler.is_compiling():
             inverse = 1.0 / forms[13]
             return angles_columnwise([form * inverse for form in forms[:13]], convention, eps)
-        angles = angles_columnwise(forms, convention, eps)
-        return torch.where((forms[13] == 0).unsqueeze(-1), torch.nan, angles)
+        return angles_columnwise(forms, convention, eps, nan_where=forms[13] == 0)
     return euler_angles(q, convention, eps, is_matrix=False)
 
 
@@ -330,7 +330,7 @@ def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Option
 @kernel
 def matrix_to_euler_unchecked(R: Tensor, convention: EulerConvention, eps: float) -> Tensor:
     if not is_small(R, 9, share=0.25):  # crossover measured near 1000 rows (with the closed-form backward)
-        entries = R.flatten(-2).unbind(-1)
+        entries = columns(R.flatten(-2))
         return angles_columnwise([combine(entries, terms) for terms in COLUMNWISE[convention.name][2]], convention, eps)
     return euler_angles(R, convention, eps, is_matrix=True)
 

@@ -6,7 +6,8 @@ from torch import Tensor
 from . import _closed_form as closed_form
 from ._closed_form import jacobian_rule
 from ._dispatch import kernel
-from ._math import constant, contract, is_small
+from ._math import constant, contract, is_small, sum_of_squares
+from ._planes import columns, planar, rows
 from ._validation import prepare, restore
 from .quaternion import standardize_sign
 
@@ -30,6 +31,10 @@ def _homogeneous_table():
 
 
 _HOMOGENEOUS = _homogeneous_table()
+_PAIRS = tuple((i, j) for i in range(4) for j in range(i, 4))
+# 10 x 9: the products q_i q_j (i <= j) -> the 9 entries of |q|^2 R
+_HOMOGENEOUS_PAIRS = tuple(tuple(_HOMOGENEOUS[4 * i + j][c] + (_HOMOGENEOUS[4 * j + i][c] if i != j else 0.0)
+                                 for c in range(9)) for i, j in _PAIRS)
 
 
 @kernel
@@ -40,7 +45,14 @@ def quat_to_matrix_unchecked(q: Tensor) -> Tensor:
         # small matmul against the constant table, a division (NOTES: 5-10 us an op at N = 1).
         h = contract((q.unsqueeze(-1) * q.unsqueeze(-2)).flatten(-2), "homogeneous", _HOMOGENEOUS)
         return (h[..., :9] / h[..., 9:]).unflatten(-1, (3, 3))
-    # Many: the skinny matmul is slower than elementwise passes (NOTES), so spell it out.
+    if planar(q, 4):
+        # Many, eager: the 10 distinct products q_i q_j / |q|^2 as contiguous columns; one matmul
+        # with the table sums them into R's entries and interleaves them (torchquat._planes).
+        q = columns(q)
+        inverse = torch.reciprocal(sum_of_squares(q))
+        scaled = [c * inverse for c in q]
+        return rows([q[i] * scaled[j] for i, j in _PAIRS], _HOMOGENEOUS_PAIRS, "homogeneous_pairs").unflatten(-1, (3, 3))
+    # Many (compiled: one fused loop): the outer product's (N, 16) buffer costs more than it saves.
     w, x, y, z = q.unbind(-1)
     s = 2.0 / (w * w + x * x + y * y + z * z)
     xs, ys, zs = x * s, y * s, z * s

@@ -12,8 +12,11 @@ from typing import Sequence, Union
 import torch
 from torch import Tensor
 
+from . import _closed_form as closed_form
+from ._closed_form import Rule
 from ._dispatch import kernel
-from ._math import constant, contract, is_small
+from ._math import bilinear, constant, contract, is_small, sum_of_squares
+from ._planes import columns, planar, rows
 from ._validation import prepare, prepare_pair, restore
 
 __all__ = [
@@ -43,6 +46,25 @@ def basis_product(a, b):
 
 _PRODUCT = _product_table()
 CONJUGATE_SIGNS = [1.0, -1.0, -1.0, -1.0]
+# p conj(q) and conj(p) q, for the product's gradients
+_PRODUCT_CONJUGATE_RIGHT = tuple(tuple(c * CONJUGATE_SIGNS[r % 4] for c in row) for r, row in enumerate(_PRODUCT))
+_PRODUCT_CONJUGATE_LEFT = tuple(tuple(c * CONJUGATE_SIGNS[r // 4] for c in row) for r, row in enumerate(_PRODUCT))
+
+
+def _product_columnwise(p: Tensor, q: Tensor) -> Tensor:
+    return rows(bilinear(columns(p), columns(q), _PRODUCT))
+
+
+def _product_columnwise_backward(grad: Tensor, inputs, saved):
+    # d(p q) = dp q + p dq, and right (left) multiplication by q has the transpose of right (left)
+    # multiplication by conj(q): 2 products of 16 terms, against autograd's ~100 nodes.
+    p, q = (columns(x) for x in inputs)
+    g = columns(grad)
+    return rows(bilinear(g, q, _PRODUCT_CONJUGATE_RIGHT)), rows(bilinear(p, g, _PRODUCT_CONJUGATE_LEFT))
+
+
+_PRODUCT_COLUMNWISE = Rule(_product_columnwise, lambda p, q: (_product_columnwise(p, q), ()),
+                           _product_columnwise_backward)
 
 
 @kernel
@@ -50,14 +72,9 @@ def hamilton_product(p: Tensor, q: Tensor) -> Tensor:
     """Unchecked Hamilton product of prepared tensors (used internally)."""
     if is_small(p, 4) and is_small(q, 4):
         return contract((p.unsqueeze(-1) * q.unsqueeze(-2)).flatten(-2), "product", _PRODUCT)
-    pw, px, py, pz = p.unbind(-1)
-    qw, qx, qy, qz = q.unbind(-1)
-    return torch.stack((
-        pw * qw - px * qx - py * qy - pz * qz,
-        pw * qx + px * qw + py * qz - pz * qy,
-        pw * qy - px * qz + py * qw + pz * qx,
-        pw * qz + px * qy - py * qx + pz * qw,
-    ), dim=-1)
+    if torch.compiler.is_compiling():
+        return _product_columnwise(p, q)
+    return closed_form.apply(_PRODUCT_COLUMNWISE, p, q)
 
 
 def quat_multiply(p: Tensor, q: Tensor) -> Tensor:
@@ -193,14 +210,16 @@ def quat_rotate(q: Tensor, v: Tensor) -> Tensor:
 
 @kernel
 def rotate_unchecked(q: Tensor, v: Tensor) -> Tensor:
-    if torch.compiler.is_compiling():  # column by column: one fused vectorised loop
-        q, v = torch.broadcast_tensors(q, torch.nn.functional.pad(v, (1, 0)))
-        w, x, y, z = q.unbind(-1)
-        _, a, b, c = v.unbind(-1)
-        scale = 2.0 / (w * w + x * x + y * y + z * z)
-        tx, ty, tz = (y * c - z * b) * scale, (z * a - x * c) * scale, (x * b - y * a) * scale
-        return torch.stack((a + w * tx + y * tz - z * ty, b + w * ty + z * tx - x * tz,
-                            c + w * tz + x * ty - y * tx), dim=-1)
+    if torch.compiler.is_compiling() or planar(q, 4) or planar(v, 3):  # column by column (one fused loop under compile)
+        q, (a, b, c) = columns(q), columns(v)
+        w, x, y, z = q
+        scale = 2.0 / sum_of_squares(q)
+        tx = torch.addcmul(y * c, z, b, value=-1.0) * scale
+        ty = torch.addcmul(z * a, x, c, value=-1.0) * scale
+        tz = torch.addcmul(x * b, y, a, value=-1.0) * scale
+        return rows((torch.addcmul(torch.addcmul(torch.addcmul(a, w, tx), y, tz), z, ty, value=-1.0),
+                     torch.addcmul(torch.addcmul(torch.addcmul(b, w, ty), z, tx), x, tz, value=-1.0),
+                     torch.addcmul(torch.addcmul(torch.addcmul(c, w, tz), x, ty), y, tx, value=-1.0)))
     w, u = q.narrow(-1, 0, 1), q.narrow(-1, 1, 3)
     u, v = torch.broadcast_tensors(u, v)  # linalg.cross wants equal ndim; these are views
     t = torch.linalg.cross(u, v, dim=-1) * (constant("two", 2.0, q) / (q * q).sum(-1, keepdim=True))

@@ -9,6 +9,7 @@ from . import _closed_form as closed_form
 from ._closed_form import Rule
 from ._dispatch import kernel
 from ._math import constant, is_small
+from ._planes import columns, rows
 from ._validation import prepare, restore
 from .errors import ShapeError
 
@@ -63,7 +64,7 @@ def rot6d_to_matrix_unchecked(x: Tensor) -> Tensor:
 def _rot6d_columnwise(x: Tensor) -> Tensor:
     """The same, column by column: fewer passes for large batches, and one fused vectorised loop
     under ``torch.compile``."""
-    a = x.unbind(-1)
+    a = columns(x)
     a1, a2 = a[:3], a[3:]
     inv1 = torch.rsqrt(a1[0] * a1[0] + a1[1] * a1[1] + a1[2] * a1[2])
     b1 = [c * inv1 for c in a1]
@@ -76,7 +77,7 @@ def _rot6d_columnwise(x: Tensor) -> Tensor:
     b1 = [torch.where(valid, c, torch.nan) for c in b1]
     b2 = [c * inv2 for c in b2]
     b3 = [b1[1] * b2[2] - b1[2] * b2[1], b1[2] * b2[0] - b1[0] * b2[2], b1[0] * b2[1] - b1[1] * b2[0]]
-    return torch.stack([c for row in zip(b1, b2, b3) for c in row], dim=-1).unflatten(-1, (3, 3))
+    return rows([c for row in zip(b1, b2, b3) for c in row]).unflatten(-1, (3, 3))
 
 
 def rot6d_to_matrix(x: Tensor) -> Tensor:

@@ -1,0 +1,110 @@
+"""Contiguous columns for the large-batch eager kernels.
+
+A large-batch kernel works column by column: ``q.unbind(-1)`` and, at the end,
+``torch.stack(columns, -1)``. In eager PyTorch on the CPU both ends are slow for a rows-of-k
+layout. ``unbind`` gives strided views, and an eager kernel on strided views loses its vectorised
+loop (per 1e6 float32 rows, one thread: ``atan2`` 25 ms instead of 1.3, ``sqrt`` 12 instead of
+about 0.5, a product 0.8 instead of 0.45). ``torch.stack(columns, -1)`` interleaves at 8.7 ms
+for 4 columns and 19 ms for 9, and ``.t().contiguous()`` is no faster. A matrix product with the
+identity does the same transposes in 1.3-1.8 ms (4 columns) and 5-6 ms (9): MKL reads and writes
+either layout at memory speed. A product with any other constant table (the final linear
+combination of a kernel) costs the same, so :func:`rows` takes one.
+
+The identity product is exact for finite numbers (``x * 1 + 0 * y``); it turns ``-0.0`` into
+``+0.0``, and a row holding an infinity gets NaN in its other columns (``0 * inf``). Both stay
+within what the kernels promise: no rotation has an infinite entry.
+
+Only eager CPU batches of at least ``PLANAR_ROWS`` rows take this path (below, strided columns
+sit in cache and the two matmuls cost more than they save). Under ``torch.compile`` inductor
+fuses ``unbind`` and ``stack`` into its single loop, and on a GPU a float32 matrix product may
+run in TF32 (10-bit mantissa) when the user allows it, so there the plain ops run.
+"""
+
+from typing import Optional, Sequence, Tuple
+
+import torch
+from torch import Tensor
+
+from . import _math
+from ._math import combine, constant, sparse_columns
+
+
+def planar(x: Tensor, row_numel: int = 1) -> bool:
+    """Whether column code on ``x`` (rows of ``row_numel``) should use contiguous planes: eager, on
+    the CPU, and at least ``PLANAR_ROWS`` rows."""
+    return (not torch.compiler.is_compiling() and x.device.type == "cpu"
+            and x.numel() >= _math.PLANAR_ROWS * row_numel)
+
+
+_IDENTITIES = {k: tuple(tuple(float(i == j) for j in range(k)) for i in range(k)) for k in range(1, 17)}
+
+
+def _eye(k: int, like: Tensor) -> Tensor:
+    return constant(f"eye{k}", _IDENTITIES[k], like)
+
+
+def _to_planes(flat: Tensor) -> Tensor:
+    """``(M, k) -> (k, M)``, contiguous."""
+    return torch.mm(_eye(flat.shape[-1], flat), flat.t())
+
+
+def _to_rows(planes: Tensor, table: Optional[Tensor] = None) -> Tensor:
+    """``(k, M) -> (M, k)`` (or ``planes.T @ table``), contiguous."""
+    return torch.mm(planes.t(), _eye(planes.shape[0], planes) if table is None else table)
+
+
+def columns(x: Tensor) -> Tuple[Tensor, ...]:
+    """The entries of ``x``'s last dimension, each a tensor of ``x``'s batch shape: contiguous
+    copies on the eager CPU path (see the module's docstring), ``unbind``'s views otherwise.
+
+    Args:
+        x: any tensor with a last dimension of a few entries.
+
+    Returns:
+        ``x.shape[-1]`` tensors.
+
+    Shape:
+        ``(..., k)`` -> ``k`` times ``(...)``.
+
+    Example:
+        >>> w, x, y, z = columns(torch.tensor([[1., 2., 3., 4.], [5., 6., 7., 8.]]))
+        >>> y
+        tensor([3., 7.])
+    """
+    k = x.shape[-1]
+    if not planar(x, k):
+        return x.unbind(-1)
+    flat = x.reshape(-1, k)
+    return _to_planes(flat).view((k,) + x.shape[:-1]).unbind(0)
+
+
+def rows(cols: Sequence[Tensor], table=None, name: str = "") -> Tensor:
+    """``torch.stack(cols, -1)``, or its product with a constant ``table`` (``k x m``, named
+    ``name`` for the constants' cache): fast on the eager CPU path (see the module's docstring).
+
+    Args:
+        cols: ``k`` tensors of one batch shape (they broadcast).
+        table: optional nested sequence of numbers, ``k`` rows of ``m``.
+        name: the table's key in the constants' cache (required with ``table``).
+
+    Returns:
+        The columns side by side, or their linear combinations.
+
+    Shape:
+        ``k`` times ``(...)`` -> ``(..., k)``, or ``(..., m)`` with ``table``.
+
+    Example:
+        >>> rows([torch.tensor([1., 2.]), torch.tensor([3., 4.])], ((1., 1.), (0., -1.)), "demo")
+        tensor([[ 1., -2.],
+                [ 2., -2.]])
+    """
+    if torch.compiler.is_compiling() or not planar(max(cols, key=Tensor.numel)):
+        if table is not None:  # written out: inductor fuses the sums into its loop, a matmul it would not
+            cols = [combine(cols, terms) for terms in sparse_columns(table)]
+        return torch.stack(torch.broadcast_tensors(*cols), -1)
+    planes = torch.stack(torch.broadcast_tensors(*cols), 0)
+    batch = planes.shape[1:]
+    flat = planes.view(len(cols), -1)
+    matrix = None if table is None else constant(name, table, flat)
+    out = _to_rows(flat, matrix)
+    return out.view(batch + (out.shape[-1],))
