@@ -65,3 +65,32 @@ def test_axis_angle_float32_at_tiny_and_half_turn_angles():
     v = torch.stack([tiny, torch.zeros_like(tiny), torch.zeros_like(tiny)], -1)
     assert torch.equal(tq.quat_to_axis_angle(tq.axis_angle_to_quat(v)), v)
     assert math.isclose(tq.axis_angle_to_quat(v)[-1, 1].item(), 5e-5, rel_tol=1e-6)
+
+
+_MKLDNN_MATMUL = getattr(getattr(torch.backends, "mkldnn", None), "matmul", None)
+
+
+@pytest.mark.skipif(not hasattr(_MKLDNN_MATMUL, "fp32_precision"), reason="this torch has no CPU fp32 matmul precision switch")
+@pytest.mark.parametrize("precision", ["bf16", "tf32"])
+def test_float32_accuracy_holds_when_the_user_allows_reduced_precision_matmuls(precision):
+    # The kernels' constant-table and transposing matmuls must stay float32: a user who lets
+    # float32 matmuls run in bf16 or tf32 for a network must not get rotations good to 1e-3.
+    import torchquat._math as tqmath
+    previous = _MKLDNN_MATMUL.fp32_precision
+    g = torch.Generator().manual_seed(5)
+    try:
+        _MKLDNN_MATMUL.fp32_precision = precision
+        for n in (1, 300, tqmath.PLANAR_ROWS + 7):
+            q = tq.random_quat(n, generator=g, dtype=torch.float64)
+            q2, R = tq.random_quat(n, generator=g, dtype=torch.float64), tq.quat_to_matrix(q)
+            for fn, args in ((tq.quat_to_matrix, (q,)), (tq.matrix_to_quat, (R,)), (tq.quat_multiply, (q, q2)),
+                             (lambda x: tq.quat_to_euler(x, "ZYX"), (q,)), (lambda x: tq.matrix_to_euler(x, "zxz"), (R,)),
+                             (tq.quat_rotate, (q, R[..., 0])), (tq.matrix_geodesic_distance, (R, tq.quat_to_matrix(q2)))):
+                expected = fn(*args)
+                got = fn(*(a.to(F32) for a in args)).double()
+                difference = got - expected
+                if difference.dim() == 2 and difference.shape[-1] == 3 and fn is not tq.quat_rotate:  # angles
+                    difference = torch.remainder(difference + math.pi, 2 * math.pi) - math.pi
+                assert difference.abs().max() < 2e-5, (precision, n)
+    finally:
+        _MKLDNN_MATMUL.fp32_precision = previous

@@ -138,6 +138,18 @@ def _columnwise_tables(name: str):
 COLUMNWISE = {name: _columnwise_tables(name) for name in EULER_CONVENTIONS}
 
 
+def _dense_tables(name: str):
+    """The 14 forms as one matrix of q's 10 products (10 x 14), and of R's entries (9 x 14, with
+    the offset): for the eager path's single matmul (torchquat._planes)."""
+    quat_table, matrix_table, offset, _, _ = forms_tables(name)
+    pairs = tuple(tuple(quat_table[4 * i + j][f] + (quat_table[4 * j + i][f] if i != j else 0.0)
+                        for f in range(len(offset))) for i, j in PAIRS)
+    return pairs, tuple(map(tuple, matrix_table)), tuple(offset)
+
+
+DENSE = {name: _dense_tables(name) for name in EULER_CONVENTIONS}
+
+
 def angles_columnwise(forms, conv: EulerConvention, eps: float, nan_where: Optional[Tensor] = None) -> Tensor:
     """The same angles as ``torchquat._euler_small``, written column by column with the tables'
     numbers as literals: for large batches (a handful of passes over 1-D columns instead of

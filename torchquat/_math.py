@@ -104,16 +104,23 @@ def combine(columns, terms):
     return total + terms[1] if terms[1] else total
 
 
-def bilinear(a, b, table):
-    """Each column of ``table`` (rows indexed ``i * len(b) + j``) as ``sum_ij T[ij] a_i b_j``, from the
-    columns ``a`` and ``b``: one product and one ``addcmul`` per term, each a single pass."""
+def bilinear_terms(table, n_b: int):
+    """The non-zero ``(i, j, T[i * n_b + j])`` of each column of ``table``, a positive one first
+    (built once, for :func:`bilinear`)."""
+    return tuple(tuple((r // n_b, r % n_b, k) for r, k in sorted(terms, key=lambda term: -term[1]))
+                 for terms, _ in sparse_columns(table))
+
+
+def bilinear(a, b, terms):
+    """``sum_ij T[i * len(b) + j] a_i b_j`` for each column of a table given as its
+    :func:`bilinear_terms`, from the columns ``a`` and ``b``: one product and one ``addcmul`` per
+    term, each a single pass."""
     out = []
-    for terms, _ in sparse_columns(table):
-        (first, k), rest = terms[0], terms[1:]
-        total = a[first // len(b)] * b[first % len(b)]
+    for (i, j, k), *rest in terms:
+        total = a[i] * b[j]
         total = total if k == 1 else total * k
-        for r, k in rest:
-            total = torch.addcmul(total, a[r // len(b)], b[r % len(b)], value=k)
+        for i, j, k in rest:
+            total = torch.addcmul(total, a[i], b[j], value=k)
         out.append(total)
     return out
 

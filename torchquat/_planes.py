@@ -37,15 +37,11 @@ def planar(x: Tensor, row_numel: int = 1) -> bool:
 
 
 _IDENTITIES = {k: tuple(tuple(float(i == j) for j in range(k)) for i in range(k)) for k in range(1, 17)}
+_SPARSE = {}
 
 
 def _eye(k: int, like: Tensor) -> Tensor:
     return constant(f"eye{k}", _IDENTITIES[k], like)
-
-
-def _to_planes(flat: Tensor) -> Tensor:
-    """``(M, k) -> (k, M)``, contiguous."""
-    return torch.mm(_eye(flat.shape[-1], flat), flat.t())
 
 
 def _to_rows(planes: Tensor, table: Optional[Tensor] = None) -> Tensor:
@@ -53,29 +49,81 @@ def _to_rows(planes: Tensor, table: Optional[Tensor] = None) -> Tensor:
     return torch.mm(planes.t(), _eye(planes.shape[0], planes) if table is None else table)
 
 
-def columns(x: Tensor) -> Tuple[Tensor, ...]:
-    """The entries of ``x``'s last dimension, each a tensor of ``x``'s batch shape: contiguous
-    copies on the eager CPU path (see the module's docstring), ``unbind``'s views otherwise.
+def _combined(cols, table, name: str, offset):
+    """``combine`` of each column of ``table``: one pass per term (fused under compile)."""
+    terms = None if torch.compiler.is_compiling() else _SPARSE.get(name)
+    if terms is None:
+        terms = sparse_columns(table, offset)
+        if not torch.compiler.is_compiling():
+            _SPARSE[name] = terms
+    return tuple(combine(cols, t) for t in terms)
+
+
+def _with_offset(planes, offset):
+    if offset is None:
+        return tuple(planes)
+    return tuple(p + v if v else p for p, v in zip(planes, offset))
+
+
+def columns(x: Tensor, table=None, name: str = "", offset=None) -> Tuple[Tensor, ...]:
+    """The entries of ``x``'s last dimension, or of ``x @ table + offset``, each a tensor of
+    ``x``'s batch shape: contiguous results of one matmul on the eager CPU path (see the module's
+    docstring), ``unbind``'s views (and one pass per term of the table) otherwise.
 
     Args:
-        x: any tensor with a last dimension of a few entries.
+        x: any tensor with a last dimension of a few (``k``) entries.
+        table: optional nested sequence of numbers, ``k`` rows of ``m``: a linear map of the rows.
+        name: the table's key in the constants' cache (required with ``table``).
+        offset: optional ``m`` numbers added to the mapped entries.
 
     Returns:
-        ``x.shape[-1]`` tensors.
+        ``k`` (or ``m``) tensors.
 
     Shape:
-        ``(..., k)`` -> ``k`` times ``(...)``.
+        ``(..., k)`` -> ``k`` (or ``m``) times ``(...)``.
 
     Example:
         >>> w, x, y, z = columns(torch.tensor([[1., 2., 3., 4.], [5., 6., 7., 8.]]))
         >>> y
         tensor([3., 7.])
+        >>> columns(torch.tensor([[1., 2.]]), ((1., 0.5), (1., 0.0)), "demo", offset=(0.0, 1.0))
+        (tensor([3.]), tensor([1.5000]))
     """
     k = x.shape[-1]
     if not planar(x, k):
-        return x.unbind(-1)
+        cols = x.unbind(-1)
+        return cols if table is None else _combined(cols, table, name, offset)
     flat = x.reshape(-1, k)
-    return _to_planes(flat).view((k,) + x.shape[:-1]).unbind(0)
+    matrix = _eye(k, flat) if table is None else constant(name + "^T", tuple(zip(*table)), flat)
+    planes = torch.mm(matrix, flat.t())
+    return _with_offset(planes.view((planes.shape[0],) + x.shape[:-1]).unbind(0), offset)
+
+
+def combinations(cols: Sequence[Tensor], table, name: str, offset=None) -> Tuple[Tensor, ...]:
+    """The columns of ``stack(cols, -1) @ table + offset``, each a tensor of the batch shape: on the
+    eager CPU path one matmul of the stacked columns (contiguous results), else one pass per term.
+
+    Args:
+        cols: ``k`` tensors of one batch shape (they broadcast).
+        table: nested sequence of numbers, ``k`` rows of ``m``.
+        name: the table's key in the constants' cache.
+        offset: optional ``m`` numbers added to the results.
+
+    Returns:
+        ``m`` tensors.
+
+    Shape:
+        ``k`` times ``(...)`` -> ``m`` times ``(...)``.
+
+    Example:
+        >>> combinations([torch.tensor([1., 2.]), torch.tensor([3., 4.])], ((1., 1.), (0., -1.)), "demo2")
+        (tensor([1., 2.]), tensor([-2., -2.]))
+    """
+    if torch.compiler.is_compiling() or not planar(max(cols, key=Tensor.numel)):
+        return _combined(cols, table, name, offset)
+    planes = torch.stack(torch.broadcast_tensors(*cols), 0)
+    out = torch.mm(constant(name + "^T", tuple(zip(*table)), planes), planes.view(len(cols), -1))
+    return _with_offset(out.view((out.shape[0],) + planes.shape[1:]).unbind(0), offset)
 
 
 def rows(cols: Sequence[Tensor], table=None, name: str = "") -> Tensor:

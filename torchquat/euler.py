@@ -21,10 +21,10 @@ from torch import Tensor
 from . import _closed_form as closed_form
 from ._closed_form import jacobian_rule
 from ._dispatch import kernel
-from ._euler_forms import COLUMNWISE, PAIRS, angles_columnwise
+from ._euler_forms import COLUMNWISE, DENSE, PAIRS, angles_columnwise
 from ._euler_small import euler_angles, lock, matrix_layout, quat_layout
-from ._math import combine, constant, contract, is_small, sparse_columns
-from ._planes import columns, rows
+from ._math import bilinear, bilinear_terms, combine, constant, contract, is_small
+from ._planes import columns, combinations, planar, rows
 from ._validation import prepare, restore
 from .conventions import EULER_CONVENTIONS, EulerConvention, gimbal_eps, parse_convention
 from .matrix import quat_to_matrix_unchecked
@@ -88,7 +88,8 @@ _SIGN_TABLES: Dict[str, Tuple[Tuple[int, ...], ...]] = {
     name: _sign_table(conv) for name, conv in EULER_CONVENTIONS.items()
 }
 _MATRIX_TABLES = {name: _matrix_table(conv) for name, conv in EULER_CONVENTIONS.items()}
-_SIGN_COLUMNS = {name: sparse_columns(table) for name, table in _SIGN_TABLES.items()}  # (column-wise form)
+_HALF = ((0.5, 0.0, 0.0), (0.0, 0.5, 0.0), (0.0, 0.0, 0.5))
+_SIGN_BILINEAR = {name: bilinear_terms(table, 2) for name, table in _SIGN_TABLES.items()}  # (column-wise form)
 
 
 # Which of the flattened per-angle factors each product takes: ``(cos, sin)`` of angle n at
@@ -183,12 +184,12 @@ _EULER_TO_QUAT = jacobian_rule(_euler_to_quat_small, _euler_to_quat_with_jacobia
 @kernel
 def euler_to_quat_unchecked(angles: Tensor, convention: EulerConvention) -> Tensor:
     if not is_small(angles, 3, share=0.25):  # column by column: fewer passes; under compile one fused loop
-        half = [0.5 * a for a in columns(angles)]
-        cs = [(torch.cos(h), torch.sin(h)) for h in half]
+        cs = [(torch.cos(h), torch.sin(h)) for h in columns(angles, _HALF, "half3")]
         pairs = [u * v for u in cs[0] for v in cs[1]]
-        products = [p * w for p in pairs for w in cs[2]]  # index 4 m1 + 2 m2 + m3, as the table's rows
-        q = [combine(products, terms) for terms in _SIGN_COLUMNS[convention.name]]
-        sign = torch.copysign(torch.ones_like(q[0]), q[0])  # w >= 0 (a where on w < 0 mispredicts)
+        # the table's row 4 m1 + 2 m2 + m3 is pair 2 m1 + m2 times factor m3 of the third angle:
+        # two terms per component (one product of three elementary quaternions)
+        q = bilinear(pairs, cs[2], _SIGN_BILINEAR[convention.name])
+        sign = torch.copysign(constant("one", 1.0, q[0]), q[0])  # w >= 0 (a where on w < 0 mispredicts)
         return rows([c * sign for c in q])
     if is_small(angles, 3, share=0.125):  # above ~500 rows the 4-slot outer product costs more than autograd saves
         return closed_form.apply(_EULER_TO_QUAT, angles, convention=convention)
@@ -281,6 +282,11 @@ def euler_to_matrix(angles: Tensor, convention: str, degrees: bool = False) -> T
 
 @kernel
 def quat_to_euler_unchecked(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
+    if planar(q, 4):  # contiguous columns; the 14 forms from q's 10 products in one matmul
+        components = columns(q)
+        products = [components[u] * components[v] for u, v in PAIRS]
+        forms = combinations(products, DENSE[convention.name][0], "euler_q_" + convention.name)
+        return angles_columnwise(forms, convention, eps, nan_where=forms[13] == 0)
     if not is_small(q, 4, share=0.25):  # crossover measured near 1000 rows
         abcd_terms, pair_terms, _ = COLUMNWISE[convention.name]
         components = columns(q)  # once: under compile each unbind's backward is an (N, 4) buffer of its own
@@ -330,8 +336,8 @@ def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Option
 @kernel
 def matrix_to_euler_unchecked(R: Tensor, convention: EulerConvention, eps: float) -> Tensor:
     if not is_small(R, 9, share=0.25):  # crossover measured near 1000 rows (with the closed-form backward)
-        entries = columns(R.flatten(-2))
-        return angles_columnwise([combine(entries, terms) for terms in COLUMNWISE[convention.name][2]], convention, eps)
+        _, table, offset = DENSE[convention.name]  # (eager CPU: one matmul; else one pass per term)
+        return angles_columnwise(columns(R.flatten(-2), table, "euler_R_" + convention.name, offset), convention, eps)
     return euler_angles(R, convention, eps, is_matrix=True)
 
 

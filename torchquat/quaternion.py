@@ -15,7 +15,7 @@ from torch import Tensor
 from . import _closed_form as closed_form
 from ._closed_form import Rule
 from ._dispatch import kernel
-from ._math import bilinear, constant, contract, is_small, sum_of_squares
+from ._math import bilinear, bilinear_terms, constant, contract, is_small, sum_of_squares
 from ._planes import columns, planar, rows
 from ._validation import prepare, prepare_pair, restore
 
@@ -47,12 +47,13 @@ def basis_product(a, b):
 _PRODUCT = _product_table()
 CONJUGATE_SIGNS = [1.0, -1.0, -1.0, -1.0]
 # p conj(q) and conj(p) q, for the product's gradients
-_PRODUCT_CONJUGATE_RIGHT = tuple(tuple(c * CONJUGATE_SIGNS[r % 4] for c in row) for r, row in enumerate(_PRODUCT))
-_PRODUCT_CONJUGATE_LEFT = tuple(tuple(c * CONJUGATE_SIGNS[r // 4] for c in row) for r, row in enumerate(_PRODUCT))
+_PRODUCT_TERMS = bilinear_terms(_PRODUCT, 4)
+_PRODUCT_CONJUGATE_RIGHT = bilinear_terms([[c * CONJUGATE_SIGNS[r % 4] for c in row] for r, row in enumerate(_PRODUCT)], 4)
+_PRODUCT_CONJUGATE_LEFT = bilinear_terms([[c * CONJUGATE_SIGNS[r // 4] for c in row] for r, row in enumerate(_PRODUCT)], 4)
 
 
 def _product_columnwise(p: Tensor, q: Tensor) -> Tensor:
-    return rows(bilinear(columns(p), columns(q), _PRODUCT))
+    return rows(bilinear(columns(p), columns(q), _PRODUCT_TERMS))
 
 
 def _product_columnwise_backward(grad: Tensor, inputs, saved):
