@@ -149,7 +149,7 @@ def matrix_to_quat_unchecked(R: Tensor) -> Tensor:
     ``argmax`` and ``gather``, so there is no data-dependent branch and no device sync; all ten
     distinct entries of ``4 q q^T`` come from one small matmul.
     """
-    if torch.compiler.is_compiling():
+    if torch.compiler.is_compiling() or planar(R, 9):
         return _shepperd_columnwise(R)
     if is_small(R, 9, share=1 / 64):  # the looked-up (..., 9, 4) Jacobians pay up to ~100 rows
         return closed_form.apply(_MATRIX_TO_QUAT, R)
@@ -157,20 +157,28 @@ def matrix_to_quat_unchecked(R: Tensor) -> Tensor:
 
 
 def _shepperd_columnwise(R: Tensor) -> Tensor:
-    """:func:`matrix_to_quat_unchecked` column by column, for ``torch.compile``: inductor fuses
-    it into one vectorised loop, where a ``gather`` from a computed buffer would not fuse."""
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = R.flatten(-2).unbind(-1)
-    vals = (1.0 + r00 + r11 + r22, 1.0 + r00 - r11 - r22, 1.0 - r00 + r11 - r22, 1.0 - r00 - r11 + r22,
-            r21 - r12, r02 - r20, r10 - r01, r10 + r01, r02 + r20, r21 + r12)
+    """:func:`matrix_to_quat_unchecked` column by column: for ``torch.compile``, which fuses it
+    into one vectorised loop (a ``gather`` from a computed buffer would not fuse), and for large
+    eager CPU batches (contiguous columns, the 10 sums in one matmul; 2.5x fewer passes than the
+    table path's argmax and gather)."""
+    vals = columns(R.flatten(-2), _SHEPPERD, "shepperd", _SHEPPERD_OFFSET)
+    compiling = torch.compiler.is_compiling()
     best, row = vals[0], [vals[i] for i in _SHEPPERD_ROWS[0]]
     for k in range(1, 4):  # the first largest wins, as argmax's
-        take = vals[k] > best
-        best = torch.where(take, vals[k], best)
-        row = [torch.where(take, vals[i], r) for i, r in zip(_SHEPPERD_ROWS[k], row)]
+        if compiling:  # (inductor's where is a branch-free blend)
+            take = vals[k] > best
+            best = torch.where(take, vals[k], best)
+            row = [torch.where(take, vals[i], r) for i, r in zip(_SHEPPERD_ROWS[k], row)]
+        else:  # an eager where on a coin toss mispredicts a branch per element; lerp's weights 0 and 1 return either end exactly
+            take = (vals[k] > best).to(best.dtype)
+            best = torch.maximum(best, vals[k])
+            row = [torch.lerp(r, vals[i], take) for i, r in zip(_SHEPPERD_ROWS[k], row)]
     w, x, y, z = row
-    key = 8.0 * torch.sign(w) + 4.0 * torch.sign(x) + 2.0 * torch.sign(y) + torch.sign(z)
-    scale = torch.rsqrt(w * w + x * x + y * y + z * z) * torch.where(key < 0, -1.0, 1.0)
-    return torch.stack((w * scale, x * scale, y * scale, z * scale), dim=-1)
+    key = torch.add(torch.add(torch.add(torch.sign(z), torch.sign(y), alpha=2.0), torch.sign(x), alpha=4.0),
+                    torch.sign(w), alpha=8.0)  # standardize_sign's key: w >= 0, then the first non-zero
+    scale = torch.rsqrt(sum_of_squares(row))
+    scale = scale * (torch.where(key < 0, -1.0, 1.0) if compiling else torch.copysign(constant("one", 1.0, key), key))
+    return rows((w * scale, x * scale, y * scale, z * scale))
 
 
 def matrix_to_quat(R: Tensor) -> Tensor:

@@ -8,7 +8,7 @@ from torch import Tensor
 from . import _closed_form as closed_form
 from ._closed_form import Rule
 from ._dispatch import kernel
-from ._math import constant, is_small
+from ._math import constant, is_small, sum_of_squares
 from ._planes import columns, rows
 from ._validation import prepare, restore
 from .errors import ShapeError
@@ -66,17 +66,20 @@ def _rot6d_columnwise(x: Tensor) -> Tensor:
     under ``torch.compile``."""
     a = columns(x)
     a1, a2 = a[:3], a[3:]
-    inv1 = torch.rsqrt(a1[0] * a1[0] + a1[1] * a1[1] + a1[2] * a1[2])
-    b1 = [c * inv1 for c in a1]
-    dot = b1[0] * a2[0] + b1[1] * a2[1] + b1[2] * a2[2]
-    b2 = [c - dot * b for c, b in zip(a2, b1)]
-    n2 = b2[0] * b2[0] + b2[1] * b2[1] + b2[2] * b2[2]
-    noise = (16.0 * torch.finfo(x.dtype).eps) ** 2 * (a2[0] * a2[0] + a2[1] * a2[1] + a2[2] * a2[2])
+    r2 = sum_of_squares(a1)
+    dot = a1[0] * a2[0]
+    for u, v in zip(a1[1:], a2[1:]):
+        dot = torch.addcmul(dot, u, v)
+    coefficient = dot / r2  # a2 less its part along a1, before normalising either (fewer passes)
+    b2 = [torch.addcmul(v, u, coefficient, value=-1.0) for u, v in zip(a1, a2)]
+    n2 = sum_of_squares(b2)
+    noise = (16.0 * torch.finfo(x.dtype).eps) ** 2 * sum_of_squares(a2)
     valid = n2 > noise
     inv2 = torch.where(valid, torch.rsqrt(torch.where(valid, n2, 1.0)), torch.nan)
-    b1 = [torch.where(valid, c, torch.nan) for c in b1]
+    inv1 = torch.where(valid, torch.rsqrt(r2), torch.nan)
+    b1 = [c * inv1 for c in a1]
     b2 = [c * inv2 for c in b2]
-    b3 = [b1[1] * b2[2] - b1[2] * b2[1], b1[2] * b2[0] - b1[0] * b2[2], b1[0] * b2[1] - b1[1] * b2[0]]
+    b3 = [torch.addcmul(b1[i] * b2[j], b1[j], b2[i], value=-1.0) for i, j in ((1, 2), (2, 0), (0, 1))]
     return rows([c for row in zip(b1, b2, b3) for c in row]).unflatten(-1, (3, 3))
 
 
