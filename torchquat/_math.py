@@ -52,15 +52,34 @@ crossover, forward+backward, is 5,000-16,000 rows for the matrix kernels and the
 and the transposing matmuls and their backward nodes cost more than they save)."""
 
 
+def matmul_rounds(x: Tensor) -> bool:
+    """Whether a float32 matmul on ``x``'s device may round its inputs: on CUDA when the user
+    allows TF32 (``torch.backends.cuda.matmul.allow_tf32``, or a float32 matmul precision other
+    than "highest"), whose 10-bit mantissa would make a table contraction good to 1e-3 only.
+    (CPU matmuls of these shapes stay float32 under the CPU's bf16/tf32 settings: tested.)"""
+    return x.is_cuda and x.dtype == torch.float32 and (
+        torch.backends.cuda.matmul.allow_tf32 or torch.get_float32_matmul_precision() != "highest")
+
+
 def is_small(x: Tensor, row_numel: int, share: float = 1.0) -> bool:
     """Whether ``x`` (rows of ``row_numel`` numbers) is a small batch (a shape test, not data):
     at most ``share * SMALL_BATCH_ROWS`` rows (kernels whose table path costs more per row set
     a smaller share, where their measured crossover is).
 
     Inside a ``torch.compile`` trace the answer is no: inductor fuses elementwise code into one
-    loop, and a matmul would split it.
+    loop, and a matmul would split it. Where a matmul would round (:func:`matmul_rounds`) it is no
+    too: the large-batch paths are written without matmuls.
     """
-    return x.numel() <= SMALL_BATCH_ROWS * share * row_numel and not torch.compiler.is_compiling()
+    return (x.numel() <= SMALL_BATCH_ROWS * share * row_numel and not torch.compiler.is_compiling()
+            and not matmul_rounds(x))
+
+
+def matmul3(a: Tensor, b: Tensor) -> Tensor:
+    """``a @ b`` for batches of 3 x 3 matrices, as a broadcast product and sum where a matmul
+    would round (:func:`matmul_rounds`)."""
+    if matmul_rounds(a):
+        return (a.unsqueeze(-1) * b.unsqueeze(-3)).sum(-2)
+    return a @ b
 
 
 _CONSTANTS = {}
@@ -132,8 +151,9 @@ def contract(x: Tensor, name: str, values) -> Tensor:
     column by column with the table's numbers as literals, which inductor fuses with their
     neighbours into one vectorised loop (a broadcast product and reduction over a dimension of
     size 4 would use a quarter of the vector lanes, and a table buffer is re-read every call).
+    Where a matmul would round (:func:`matmul_rounds`): the same sums, eagerly.
     """
-    if torch.compiler.is_compiling():
+    if torch.compiler.is_compiling() or matmul_rounds(x):
         columns = x.unbind(-1)
         out = [combine(columns, terms) for terms in sparse_columns(values)]
         return out[0] if not isinstance(values[0], (list, tuple)) else torch.stack(out, dim=-1)

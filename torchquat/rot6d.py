@@ -8,7 +8,7 @@ from torch import Tensor
 from . import _closed_form as closed_form
 from ._closed_form import Rule
 from ._dispatch import kernel
-from ._math import constant, is_small, sum_of_squares
+from ._math import constant, is_small, matmul3, sum_of_squares
 from ._planes import columns, rows
 from ._validation import prepare, restore
 from .errors import ShapeError
@@ -147,7 +147,7 @@ class _SpecialProcrustes(torch.autograd.Function):
         d = torch.where(torch.linalg.det(U) * torch.linalg.det(Vh) < 0, -1.0, 1.0).to(M.dtype)
         flip = torch.stack((torch.ones_like(d), torch.ones_like(d), d), dim=-1)
         U_signed = U * flip.unsqueeze(-2)
-        return U_signed @ Vh, U_signed, S * flip, Vh
+        return matmul3(U_signed, Vh), U_signed, S * flip, Vh
 
     @staticmethod
     def setup_context(ctx, inputs, output):
@@ -159,12 +159,12 @@ class _SpecialProcrustes(torch.autograd.Function):
     @torch.autograd.function.once_differentiable
     def backward(ctx, grad_R, _gu, _gs, _gv):
         U, S, Vh = ctx.saved_tensors
-        Y = U.mT @ grad_R @ Vh.mT
+        Y = matmul3(matmul3(U.mT, grad_R), Vh.mT)
         denom = S.unsqueeze(-1) + S.unsqueeze(-2)
         tiny = torch.finfo(S.dtype).eps
         denom = torch.where(denom.abs() < tiny, tiny, denom)  # rank <= 1: any finite value
         Z = (Y - Y.mT) / denom
-        return U @ Z @ Vh
+        return matmul3(matmul3(U, Z), Vh)
 
 
 @kernel
