@@ -152,6 +152,85 @@ def test_quat_distance_float32_gradient_matches_float64(distance_plain):
         assert (a.double() - b).abs().max() < 1e-4
 
 
+# ---------------------------------------------------------------- matrix_geodesic_distance, large eager batches
+
+
+@pytest.fixture
+def matrix_distance_rule(monkeypatch):
+    """Large eager CPU batches take the column-wise matrix distance with its closed-form backward
+    (contiguous columns); its plain forward, differentiated by autograd, is the reference."""
+    monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 0)
+    monkeypatch.setattr(tqmath, "PLANAR_ROWS", 0)
+    return distance._matrix_distance_columnwise
+
+
+def _check_matrix_distance(plain, R1, R2, tol=1e-12):
+    grad = torch.randn(torch.broadcast_shapes(R1.shape, R2.shape)[:-2], dtype=F64,
+                       generator=torch.Generator().manual_seed(31))
+    expected, g_expected = _grads(plain, (R1, R2), grad)
+    leaves = [R1.clone().requires_grad_(), R2.clone().requires_grad_()]
+    got = tq.matrix_geodesic_distance(*leaves)
+    assert type(got.grad_fn).__name__ == "_ClosedFormBackward"
+    g_got = torch.autograd.grad(got, leaves, grad)
+    assert torch.equal(got, expected)
+    for a, b in zip(g_got, g_expected):
+        assert a.shape == b.shape
+        assert torch.isfinite(a).all() and torch.isfinite(b).all()
+        assert _relative_error(a, b) < tol
+
+
+def _matrices(n, seed):
+    return tq.quat_to_matrix(uniform(n, seed=seed))
+
+
+def test_matrix_distance_rule_forward_is_the_plain_forward(matrix_distance_rule):
+    R1, R2 = _matrices(30, 41), _matrices(30, 42)
+    out, _ = distance._MATRIX_DISTANCE_COLUMNWISE.forward(R1, R2)
+    assert torch.equal(out, matrix_distance_rule(R1, R2))
+    assert torch.equal(out, tq.matrix_geodesic_distance(R1, R2))  # the no-grad path
+
+
+def test_matrix_distance_gradient_generic_and_non_orthogonal(matrix_distance_rule):
+    R1, R2 = _matrices(40, 43), _matrices(40, 44)
+    _check_matrix_distance(matrix_distance_rule, R1, R2)
+    noise = 1e-3 * torch.randn(40, 3, 3, dtype=F64, generator=torch.Generator().manual_seed(45))
+    _check_matrix_distance(matrix_distance_rule, R1 + noise, R2)
+
+
+def test_matrix_distance_gradient_at_zero_distance_is_zero(matrix_distance_rule):
+    R = _matrices(20, 46)
+    _check_matrix_distance(matrix_distance_rule, R, R)
+    leaf = R.clone().requires_grad_()
+    (g,) = torch.autograd.grad(tq.matrix_geodesic_distance(leaf, R).sum(), leaf)
+    assert torch.equal(g, torch.zeros_like(g))
+
+
+@pytest.mark.parametrize("angle", [1e-12, 1e-9, 1e-6, 0.3, math.pi - 1e-6, math.pi - 1e-9])
+def test_matrix_distance_gradient_near_zero_and_pi(angle, matrix_distance_rule):
+    q = uniform(30, seed=47)
+    axis = torch.randn(30, 3, dtype=F64, generator=torch.Generator().manual_seed(48))
+    near = tq.quat_to_matrix(_turn(q, axis / axis.norm(dim=-1, keepdim=True) * angle))
+    _check_matrix_distance(matrix_distance_rule, tq.quat_to_matrix(q), near, tol=1e-9)
+
+
+def test_matrix_distance_gradient_at_cube_pairs(matrix_distance_rule):
+    cube = cube_rotations()  # every pair: 0, 90, 120, 180 degrees
+    _check_matrix_distance(matrix_distance_rule, cube.unsqueeze(1), cube.unsqueeze(0))
+
+
+@pytest.mark.parametrize("shapes", [((6, 3, 3), (1, 3, 3)), ((3, 3), (6, 3, 3)), ((2, 1, 3, 3), (3, 3, 3))])
+def test_matrix_distance_gradient_broadcasts(shapes, matrix_distance_rule):
+    R1 = _matrices(math.prod(shapes[0][:-2]), 49).reshape(shapes[0])
+    R2 = _matrices(math.prod(shapes[1][:-2]), 50).reshape(shapes[1])
+    _check_matrix_distance(matrix_distance_rule, R1, R2)
+
+
+def test_matrix_distance_double_backward(matrix_distance_rule):
+    R1, R2 = _matrices(3, 51).requires_grad_(), _matrices(3, 52).requires_grad_()
+    assert torch.autograd.gradcheck(tq.matrix_geodesic_distance, (R1, R2))
+    assert torch.autograd.gradgradcheck(tq.matrix_geodesic_distance, (R1, R2))
+
+
 # ---------------------------------------------------------------- rot6d_to_matrix
 
 
