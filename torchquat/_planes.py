@@ -133,7 +133,7 @@ def rows(cols: Sequence[Tensor], table=None, name: str = "") -> Tensor:
     Args:
         cols: ``k`` tensors of one batch shape (they broadcast).
         table: optional nested sequence of numbers, ``k`` rows of ``m``.
-        name: the table's key in the constants' cache (required with ``table``).
+        name: the table's key in the constants' caches (required with ``table``; one name, one table).
 
     Returns:
         The columns side by side, or their linear combinations.
@@ -142,13 +142,13 @@ def rows(cols: Sequence[Tensor], table=None, name: str = "") -> Tensor:
         ``k`` times ``(...)`` -> ``(..., k)``, or ``(..., m)`` with ``table``.
 
     Example:
-        >>> rows([torch.tensor([1., 2.]), torch.tensor([3., 4.])], ((1., 1.), (0., -1.)), "demo")
+        >>> rows([torch.tensor([1., 2.]), torch.tensor([3., 4.])], ((1., 1.), (0., -1.)), "demo_rows")
         tensor([[ 1., -2.],
                 [ 2., -2.]])
     """
     if torch.compiler.is_compiling() or not planar(max(cols, key=Tensor.numel)):
         if table is not None:  # written out: inductor fuses the sums into its loop, a matmul it would not
-            cols = [combine(cols, terms) for terms in sparse_columns(table)]
+            cols = _combined(cols, table, name, None)
         return torch.stack(torch.broadcast_tensors(*cols), -1)
     planes = torch.stack(torch.broadcast_tensors(*cols), 0)
     batch = planes.shape[1:]
