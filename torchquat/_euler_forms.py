@@ -150,11 +150,12 @@ def _dense_tables(name: str):
 DENSE = {name: _dense_tables(name) for name in EULER_CONVENTIONS}
 
 
-def angles_columnwise(forms, conv: EulerConvention, eps: float, nan_where: Optional[Tensor] = None) -> Tensor:
+def angles_columnwise(forms, conv: EulerConvention, eps: float, nan_where: Optional[Tensor] = None,
+                      share: float = 1.0) -> Tensor:
     """The same angles as ``torchquat._euler_small``, written column by column with the tables'
     numbers as literals: for large batches (a handful of passes over 1-D columns instead of
     strided pair tensors) and for ``torch.compile``, which fuses it into one vectorised loop.
-    Rows where ``nan_where`` holds come out as NaN."""
+    Rows where ``nan_where`` holds come out as NaN; ``share``: as for ``torchquat._planes.rows``."""
     f = forms
     two_h = safe_sqrt(f[0] * f[0] + f[1] * f[1])
     ab2, cd2 = f[10], f[11]
@@ -187,4 +188,4 @@ def angles_columnwise(forms, conv: EulerConvention, eps: float, nan_where: Optio
     angles = (t3, middle, t1) if conv.intrinsic else (t1, middle, torch.where(locked, 0.0, t3))
     if nan_where is not None:
         angles = [torch.where(nan_where, torch.nan, a) for a in angles]
-    return rows(angles)
+    return rows(angles, share=share)

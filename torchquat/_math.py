@@ -46,10 +46,12 @@ where per-operation dispatch dominates; larger ones take elementwise paths that 
 over memory. Both give the same results to rounding; the tests run both."""
 
 PLANAR_ROWS = 32768
-"""Eager CPU batches from this many rows work on contiguous columns (``torchquat._planes``). The
-crossover, forward+backward, is 5,000-16,000 rows for the matrix kernels and the product, and
-16,000-50,000 for the Euler-angle and axis-angle ones (below, strided columns still sit in cache
-and the transposing matmuls and their backward nodes cost more than they save)."""
+"""Eager CPU batches from ``share *`` this many rows work on contiguous columns
+(``torchquat._planes``), each kernel with the share of its measured crossover (forward+backward):
+1/4 (8,192 rows) for quat -> matrix, the product, rotating vectors, 6D and the matrix distance,
+1/2 for matrix -> quat and the quaternion distance, 1 for Euler -> quat, matrix -> Euler and
+axis-angle -> quat, 4 for quat -> Euler. Below, strided columns still sit in cache and the
+transposing matmuls and their backward nodes cost more than they save."""
 
 
 def matmul_rounds(x: Tensor) -> bool:

@@ -14,8 +14,9 @@ The identity product is exact for finite numbers (``x * 1 + 0 * y``); it turns `
 ``+0.0``, and a row holding an infinity gets NaN in its other columns (``0 * inf``). Both stay
 within what the kernels promise: no rotation has an infinite entry.
 
-Only eager CPU batches of at least ``PLANAR_ROWS`` rows take this path (below, strided columns
-sit in cache and the two matmuls cost more than they save). Under ``torch.compile`` inductor
+Only eager CPU batches of at least ``share * PLANAR_ROWS`` rows take this path, the share a
+kernel's measured crossover (below, strided columns sit in cache and the two matmuls cost more
+than they save). Under ``torch.compile`` inductor
 fuses ``unbind`` and ``stack`` into its single loop, and on a GPU a float32 matrix product may
 run in TF32 (10-bit mantissa) when the user allows it, so there the plain ops run.
 """
@@ -29,11 +30,11 @@ from . import _math
 from ._math import combine, constant, sparse_columns
 
 
-def planar(x: Tensor, row_numel: int = 1) -> bool:
+def planar(x: Tensor, row_numel: int = 1, share: float = 1.0) -> bool:
     """Whether column code on ``x`` (rows of ``row_numel``) should use contiguous planes: eager, on
-    the CPU, and at least ``PLANAR_ROWS`` rows."""
+    the CPU, and at least ``share * PLANAR_ROWS`` rows (a kernel's measured crossover)."""
     return (not torch.compiler.is_compiling() and x.device.type == "cpu"
-            and x.numel() >= _math.PLANAR_ROWS * row_numel)
+            and x.numel() >= _math.PLANAR_ROWS * share * row_numel)
 
 
 _IDENTITIES = {k: tuple(tuple(float(i == j) for j in range(k)) for i in range(k)) for k in range(1, 17)}
@@ -65,7 +66,7 @@ def _with_offset(planes, offset):
     return tuple(p + v if v else p for p, v in zip(planes, offset))
 
 
-def columns(x: Tensor, table=None, name: str = "", offset=None) -> Tuple[Tensor, ...]:
+def columns(x: Tensor, table=None, name: str = "", offset=None, share: float = 1.0) -> Tuple[Tensor, ...]:
     """The entries of ``x``'s last dimension, or of ``x @ table + offset``, each a tensor of
     ``x``'s batch shape: contiguous results of one matmul on the eager CPU path (see the module's
     docstring), ``unbind``'s views (and one pass per term of the table) otherwise.
@@ -75,6 +76,7 @@ def columns(x: Tensor, table=None, name: str = "", offset=None) -> Tuple[Tensor,
         table: optional nested sequence of numbers, ``k`` rows of ``m``: a linear map of the rows.
         name: the table's key in the constants' cache (required with ``table``).
         offset: optional ``m`` numbers added to the mapped entries.
+        share: the kernel's crossover as a share of ``PLANAR_ROWS`` (see :func:`planar`).
 
     Returns:
         ``k`` (or ``m``) tensors.
@@ -90,7 +92,7 @@ def columns(x: Tensor, table=None, name: str = "", offset=None) -> Tuple[Tensor,
         (tensor([3.]), tensor([1.5000]))
     """
     k = x.shape[-1]
-    if not planar(x, k):
+    if not planar(x, k, share):
         cols = x.unbind(-1)
         return cols if table is None else _combined(cols, table, name, offset)
     flat = x.reshape(-1, k)
@@ -99,7 +101,7 @@ def columns(x: Tensor, table=None, name: str = "", offset=None) -> Tuple[Tensor,
     return _with_offset(planes.view((planes.shape[0],) + x.shape[:-1]).unbind(0), offset)
 
 
-def combinations(cols: Sequence[Tensor], table, name: str, offset=None) -> Tuple[Tensor, ...]:
+def combinations(cols: Sequence[Tensor], table, name: str, offset=None, share: float = 1.0) -> Tuple[Tensor, ...]:
     """The columns of ``stack(cols, -1) @ table + offset``, each a tensor of the batch shape: on the
     eager CPU path one matmul of the stacked columns (contiguous results), else one pass per term.
 
@@ -108,6 +110,7 @@ def combinations(cols: Sequence[Tensor], table, name: str, offset=None) -> Tuple
         table: nested sequence of numbers, ``k`` rows of ``m``.
         name: the table's key in the constants' cache.
         offset: optional ``m`` numbers added to the results.
+        share: as for :func:`columns`.
 
     Returns:
         ``m`` tensors.
@@ -119,14 +122,14 @@ def combinations(cols: Sequence[Tensor], table, name: str, offset=None) -> Tuple
         >>> combinations([torch.tensor([1., 2.]), torch.tensor([3., 4.])], ((1., 1.), (0., -1.)), "demo2")
         (tensor([1., 2.]), tensor([-2., -2.]))
     """
-    if torch.compiler.is_compiling() or not planar(max(cols, key=Tensor.numel)):
+    if torch.compiler.is_compiling() or not planar(max(cols, key=Tensor.numel), 1, share):
         return _combined(cols, table, name, offset)
     planes = torch.stack(torch.broadcast_tensors(*cols), 0)
     out = torch.mm(constant(name + "^T", tuple(zip(*table)), planes), planes.view(len(cols), -1))
     return _with_offset(out.view((out.shape[0],) + planes.shape[1:]).unbind(0), offset)
 
 
-def rows(cols: Sequence[Tensor], table=None, name: str = "") -> Tensor:
+def rows(cols: Sequence[Tensor], table=None, name: str = "", share: float = 1.0) -> Tensor:
     """``torch.stack(cols, -1)``, or its product with a constant ``table`` (``k x m``, named
     ``name`` for the constants' cache): fast on the eager CPU path (see the module's docstring).
 
@@ -134,6 +137,7 @@ def rows(cols: Sequence[Tensor], table=None, name: str = "") -> Tensor:
         cols: ``k`` tensors of one batch shape (they broadcast).
         table: optional nested sequence of numbers, ``k`` rows of ``m``.
         name: the table's key in the constants' caches (required with ``table``; one name, one table).
+        share: as for :func:`columns`.
 
     Returns:
         The columns side by side, or their linear combinations.
@@ -146,7 +150,7 @@ def rows(cols: Sequence[Tensor], table=None, name: str = "") -> Tensor:
         tensor([[ 1., -2.],
                 [ 2., -2.]])
     """
-    if torch.compiler.is_compiling() or not planar(max(cols, key=Tensor.numel)):
+    if torch.compiler.is_compiling() or not planar(max(cols, key=Tensor.numel), 1, share):
         if table is not None:  # written out: inductor fuses the sums into its loop, a matmul it would not
             cols = _combined(cols, table, name, None)
         return torch.stack(torch.broadcast_tensors(*cols), -1)

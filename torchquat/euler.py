@@ -89,6 +89,8 @@ _SIGN_TABLES: Dict[str, Tuple[Tuple[int, ...], ...]] = {
 }
 _MATRIX_TABLES = {name: _matrix_table(conv) for name, conv in EULER_CONVENTIONS.items()}
 _HALF = ((0.5, 0.0, 0.0), (0.0, 0.5, 0.0), (0.0, 0.0, 0.5))
+# quat -> Euler: contiguous columns from 131,072 rows (it loses up to 1.2x with the backward at 16-65k)
+_QUAT_TO_EULER_PLANAR_SHARE = 4.0
 _SIGN_BILINEAR = {name: bilinear_terms(table, 2) for name, table in _SIGN_TABLES.items()}  # (column-wise form)
 
 
@@ -282,11 +284,12 @@ def euler_to_matrix(angles: Tensor, convention: str, degrees: bool = False) -> T
 
 @kernel
 def quat_to_euler_unchecked(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
-    if planar(q, 4):  # contiguous columns; the 14 forms from q's 10 products in one matmul
-        components = columns(q)
+    if planar(q, 4, _QUAT_TO_EULER_PLANAR_SHARE):  # contiguous columns; the 14 forms from q's 10 products in one matmul
+        share = _QUAT_TO_EULER_PLANAR_SHARE
+        components = columns(q, share=share)
         products = [components[u] * components[v] for u, v in PAIRS]
-        forms = combinations(products, DENSE[convention.name][0], "euler_q_" + convention.name)
-        return angles_columnwise(forms, convention, eps, nan_where=forms[13] == 0)
+        forms = combinations(products, DENSE[convention.name][0], "euler_q_" + convention.name, share=share)
+        return angles_columnwise(forms, convention, eps, nan_where=forms[13] == 0, share=share)
     if not is_small(q, 4, share=0.25):  # crossover measured near 1000 rows
         abcd_terms, pair_terms, _ = COLUMNWISE[convention.name]
         components = columns(q)  # once: under compile each unbind's backward is an (N, 4) buffer of its own

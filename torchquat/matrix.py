@@ -31,6 +31,8 @@ def _homogeneous_table():
 
 
 _HOMOGENEOUS = _homogeneous_table()
+# contiguous columns from 8,192 rows (quat -> matrix) and 16,384 (matrix -> quat): measured crossovers
+_PLANAR_SHARE, _SHEPPERD_PLANAR_SHARE = 0.25, 0.5
 _PAIRS = tuple((i, j) for i in range(4) for j in range(i, 4))
 # 10 x 9: the products q_i q_j (i <= j) -> the 9 entries of |q|^2 R
 _HOMOGENEOUS_PAIRS = tuple(tuple(_HOMOGENEOUS[4 * i + j][c] + (_HOMOGENEOUS[4 * j + i][c] if i != j else 0.0)
@@ -45,13 +47,14 @@ def quat_to_matrix_unchecked(q: Tensor) -> Tensor:
         # small matmul against the constant table, a division (NOTES: 5-10 us an op at N = 1).
         h = contract((q.unsqueeze(-1) * q.unsqueeze(-2)).flatten(-2), "homogeneous", _HOMOGENEOUS)
         return (h[..., :9] / h[..., 9:]).unflatten(-1, (3, 3))
-    if planar(q, 4):
+    if planar(q, 4, _PLANAR_SHARE):
         # Many, eager: the 10 distinct products q_i q_j / |q|^2 as contiguous columns; one matmul
         # with the table sums them into R's entries and interleaves them (torchquat._planes).
-        q = columns(q)
+        q = columns(q, share=_PLANAR_SHARE)
         inverse = torch.reciprocal(sum_of_squares(q))
         scaled = [c * inverse for c in q]
-        return rows([q[i] * scaled[j] for i, j in _PAIRS], _HOMOGENEOUS_PAIRS, "homogeneous_pairs").unflatten(-1, (3, 3))
+        return rows([q[i] * scaled[j] for i, j in _PAIRS], _HOMOGENEOUS_PAIRS, "homogeneous_pairs",
+                    _PLANAR_SHARE).unflatten(-1, (3, 3))
     # Many (compiled: one fused loop): the outer product's (N, 16) buffer costs more than it saves.
     w, x, y, z = q.unbind(-1)
     s = 2.0 / (w * w + x * x + y * y + z * z)
@@ -149,7 +152,7 @@ def matrix_to_quat_unchecked(R: Tensor) -> Tensor:
     ``argmax`` and ``gather``, so there is no data-dependent branch and no device sync; all ten
     distinct entries of ``4 q q^T`` come from one small matmul.
     """
-    if torch.compiler.is_compiling() or planar(R, 9):
+    if torch.compiler.is_compiling() or planar(R, 9, _SHEPPERD_PLANAR_SHARE):
         return _shepperd_columnwise(R)
     if is_small(R, 9, share=1 / 64):  # the looked-up (..., 9, 4) Jacobians pay up to ~100 rows
         return closed_form.apply(_MATRIX_TO_QUAT, R)
@@ -161,7 +164,7 @@ def _shepperd_columnwise(R: Tensor) -> Tensor:
     into one vectorised loop (a ``gather`` from a computed buffer would not fuse), and for large
     eager CPU batches (contiguous columns, the 10 sums in one matmul; 2.5x fewer passes than the
     table path's argmax and gather)."""
-    vals = columns(R.flatten(-2), _SHEPPERD, "shepperd", _SHEPPERD_OFFSET)
+    vals = columns(R.flatten(-2), _SHEPPERD, "shepperd", _SHEPPERD_OFFSET, _SHEPPERD_PLANAR_SHARE)
     compiling = torch.compiler.is_compiling()
     best, row = vals[0], [vals[i] for i in _SHEPPERD_ROWS[0]]
     for k in range(1, 4):  # the first largest wins, as argmax's
@@ -178,7 +181,7 @@ def _shepperd_columnwise(R: Tensor) -> Tensor:
                     torch.sign(w), alpha=8.0)  # standardize_sign's key: w >= 0, then the first non-zero
     scale = torch.rsqrt(sum_of_squares(row))
     scale = scale * (torch.where(key < 0, -1.0, 1.0) if compiling else torch.copysign(constant("one", 1.0, key), key))
-    return rows((w * scale, x * scale, y * scale, z * scale))
+    return rows((w * scale, x * scale, y * scale, z * scale), share=_SHEPPERD_PLANAR_SHARE)
 
 
 def matrix_to_quat(R: Tensor) -> Tensor:

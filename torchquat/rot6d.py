@@ -14,6 +14,7 @@ from ._validation import prepare, restore
 from .errors import ShapeError
 
 __all__ = ["rot6d_to_matrix", "matrix_to_rot6d", "rot9d_to_matrix"]
+_PLANAR_SHARE = 0.25  # contiguous columns from 8,192 rows (measured crossover)
 
 
 def _rot6d_parts(x: Tensor):
@@ -64,7 +65,7 @@ def rot6d_to_matrix_unchecked(x: Tensor) -> Tensor:
 def _rot6d_columnwise(x: Tensor) -> Tensor:
     """The same, column by column: fewer passes for large batches, and one fused vectorised loop
     under ``torch.compile``."""
-    a = columns(x)
+    a = columns(x, share=_PLANAR_SHARE)
     a1, a2 = a[:3], a[3:]
     r2 = sum_of_squares(a1)
     dot = a1[0] * a2[0]
@@ -80,7 +81,7 @@ def _rot6d_columnwise(x: Tensor) -> Tensor:
     b1 = [c * inv1 for c in a1]
     b2 = [c * inv2 for c in b2]
     b3 = [torch.addcmul(b1[i] * b2[j], b1[j], b2[i], value=-1.0) for i, j in ((1, 2), (2, 0), (0, 1))]
-    return rows([c for row in zip(b1, b2, b3) for c in row]).unflatten(-1, (3, 3))
+    return rows([c for row in zip(b1, b2, b3) for c in row], share=_PLANAR_SHARE).unflatten(-1, (3, 3))
 
 
 def rot6d_to_matrix(x: Tensor) -> Tensor:
