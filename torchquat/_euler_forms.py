@@ -125,14 +125,14 @@ PAIRS = tuple((i, j) for i in range(4) for j in range(i, 4))  # the 10 distinct 
 
 
 def _columnwise_tables(name: str):
-    """Sparse terms: ``(a, b, c, d)`` from q's components, the 14 forms from the 10 products of
-    ``(a, b, c, d)``, and the 14 forms from R's 9 entries."""
-    quat_table, matrix_table, offset, _, abcd_table = forms_tables(name)
+    """Sparse terms: ``(a, b, c, d)`` from q's components, and the 14 forms from the 10 products of
+    ``(a, b, c, d)`` (the forms from R's entries: :data:`DENSE`, through ``torchquat._planes``)."""
+    abcd_table = forms_tables(name)[4]
     pair_table = [[0.0] * len(abcd_table[0]) for _ in PAIRS]
     for p, (u, v) in enumerate(PAIRS):
         for k in range(len(abcd_table[0])):  # M[u][v] + M[v][u] multiplies u v (u != v)
             pair_table[p][k] = abcd_table[4 * u + v][k] * (1 if u == v else 2)
-    return sparse_columns(ABCD[name][0]), sparse_columns(pair_table), sparse_columns(matrix_table, offset)
+    return sparse_columns(ABCD[name][0]), sparse_columns(pair_table)
 
 
 COLUMNWISE = {name: _columnwise_tables(name) for name in EULER_CONVENTIONS}

@@ -291,7 +291,7 @@ def quat_to_euler_unchecked(q: Tensor, convention: EulerConvention, eps: float) 
         forms = combinations(products, DENSE[convention.name][0], "euler_q_" + convention.name, share=share)
         return angles_columnwise(forms, convention, eps, nan_where=forms[13] == 0, share=share)
     if not is_small(q, 4, share=0.25):  # crossover measured near 1000 rows
-        abcd_terms, pair_terms, _ = COLUMNWISE[convention.name]
+        abcd_terms, pair_terms = COLUMNWISE[convention.name]
         components = columns(q)  # once: under compile each unbind's backward is an (N, 4) buffer of its own
         abcd = [combine(components, terms) for terms in abcd_terms]
         products = [abcd[u] * abcd[v] for u, v in PAIRS]
