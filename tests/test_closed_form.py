@@ -111,6 +111,58 @@ def test_euler_to_rotation_jacobians_match_autograd(convention, target):
     assert torch.allclose(g, expected_g, atol=1e-13, rtol=0)
 
 
+@pytest.mark.parametrize("planes", [False, True], ids=["strided", "planar"])
+@pytest.mark.parametrize("convention", CONVENTIONS)
+def test_euler_to_quat_columnwise_backward_matches_autograd(convention, planes, monkeypatch):
+    # large batches: dq = e_L q / 2, q e_R / 2 and (cos a_L e_M + sin a_L e_L x e_M) q / 2 per angle,
+    # on generic angles, gimbal lock, angles past pi (w's sign flips) and zeros
+    import torchquat._math as tqmath
+    monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 0)
+    monkeypatch.setattr(tqmath, "PLANAR_ROWS", 0 if planes else 10**12)
+    conv = EULER_CONVENTIONS[convention]
+    generator = torch.Generator().manual_seed(8)
+    angles = torch.cat([(torch.rand(30, 3, dtype=torch.float64, generator=generator) - 0.5) * 14,
+                        lock_angles(convention)[0], torch.zeros(1, 3, dtype=torch.float64),
+                        torch.tensor([[3.0, 1.0, -2.0], [1.0, 3.0, -2.0]], dtype=torch.float64) * torch.pi / 3])
+    grad = torch.randn(angles.shape[0], 4, dtype=angles.dtype, generator=generator)
+    leaf = angles.clone().requires_grad_()
+    expected = E._euler_to_quat_columnwise(leaf, conv)
+    (g_expected,) = torch.autograd.grad(expected, leaf, grad)
+    leaf = angles.clone().requires_grad_()
+    got = tq.euler_to_quat(leaf, convention)
+    assert type(got.grad_fn).__name__ == "_ClosedFormBackward"
+    (g_got,) = torch.autograd.grad(got, leaf, grad)
+    assert torch.equal(got, expected)
+    assert torch.allclose(g_got, g_expected, atol=1e-14, rtol=0)
+
+
+@pytest.mark.parametrize("is_matrix, planes", [(False, True), (True, False), (True, True)],
+                         ids=["quat planar", "matrix strided", "matrix planar"])  # (strided quaternions: autograd)
+@pytest.mark.parametrize("convention", CONVENTIONS)
+def test_columnwise_euler_angles_backward_matches_autograd(convention, is_matrix, planes, monkeypatch):
+    # large batches: the forms' gradient from each atan2 (t1 constant at lock, the pick's weights)
+    # mapped back through the tables, at uniform, singular and lock rotations
+    import torchquat._math as tqmath
+    monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 0)
+    monkeypatch.setattr(tqmath, "PLANAR_ROWS", 0 if planes else 10**12)
+    conv = EULER_CONVENTIONS[convention]
+    q = torch.cat([_samples(), tq.euler_to_quat(lock_angles(convention)[0] + torch.tensor([0.0, 1e-5, 0.0], dtype=torch.float64),
+                                                convention)])
+    x = tq.quat_to_matrix(q) if is_matrix else q
+    plain = E._matrix_to_euler_columnwise if is_matrix else E._quat_to_euler_planar
+    grad = torch.randn(x.shape[0], 3, dtype=x.dtype, generator=torch.Generator().manual_seed(17))
+    leaf = x.clone().requires_grad_()
+    expected = plain(leaf, conv, 1e-7)
+    (g_expected,) = torch.autograd.grad(expected, leaf, grad)
+    leaf = x.clone().requires_grad_()
+    got = (tq.matrix_to_euler if is_matrix else tq.quat_to_euler)(leaf, convention, eps=1e-7)
+    assert type(got.grad_fn).__name__ == "_ClosedFormBackward"
+    (g_got,) = torch.autograd.grad(got, leaf, grad)
+    assert torch.equal(got, expected)
+    assert torch.isfinite(g_got).all()
+    assert torch.allclose(g_got, g_expected, atol=1e-12, rtol=1e-12)
+
+
 def test_matrix_to_quat_jacobian_matches_autograd_for_every_shepperd_choice():
     from torchquat import matrix as M
     # uniform rotations, the singular sets (identity, half turns about every axis) and the cube's 24

@@ -16,7 +16,7 @@ from typing import Optional
 import torch
 from torch import Tensor
 
-from ._math import safe_sqrt, sparse_columns
+from ._math import constant, safe_sqrt, sparse_columns, zero_to_inf
 from ._planes import rows
 from .conventions import EULER_CONVENTIONS, EulerConvention
 from .matrix import _SHEPPERD, _SHEPPERD_OFFSET, _SHEPPERD_ROWS
@@ -124,14 +124,23 @@ def forms_tables(name: str):
 PAIRS = tuple((i, j) for i in range(4) for j in range(i, 4))  # the 10 distinct products u v
 
 
+ANGLE_FORMS = (0, 1, 2, 3, 4, 5, 12)
+"""The forms :func:`angles_columnwise` reads: ``t1``'s pair, the two double angles' and ``Z``. The
+lock pairs (6-9) are the double angles' up to sign, and ``(|ab|^2, |cd|^2)`` (10-11) tell no more
+than ``Z``'s sign and ``|abcd|^2`` (13: a quaternion's, or a constant for a matrix) do: every form
+left out is a column less in the transposing matmul and in its backward."""
+
+
 def _columnwise_tables(name: str):
-    """Sparse terms: ``(a, b, c, d)`` from q's components, and the 14 forms from the 10 products of
-    ``(a, b, c, d)`` (the forms from R's entries: :data:`DENSE`, through ``torchquat._planes``)."""
+    """Sparse terms: ``(a, b, c, d)`` from q's components, and the forms :data:`ANGLE_FORMS` and
+    ``|abcd|^2`` from the 10 products of ``(a, b, c, d)`` (the forms from R's entries:
+    :data:`DENSE`, through ``torchquat._planes``)."""
     abcd_table = forms_tables(name)[4]
     pair_table = [[0.0] * len(abcd_table[0]) for _ in PAIRS]
     for p, (u, v) in enumerate(PAIRS):
         for k in range(len(abcd_table[0])):  # M[u][v] + M[v][u] multiplies u v (u != v)
             pair_table[p][k] = abcd_table[4 * u + v][k] * (1 if u == v else 2)
+    pair_table = [[row[k] for k in ANGLE_FORMS + (13,)] for row in pair_table]
     return sparse_columns(ABCD[name][0]), sparse_columns(pair_table)
 
 
@@ -139,29 +148,35 @@ COLUMNWISE = {name: _columnwise_tables(name) for name in EULER_CONVENTIONS}
 
 
 def _dense_tables(name: str):
-    """The 14 forms as one matrix of q's 10 products (10 x 14), and of R's entries (9 x 14, with
-    the offset): for the eager path's single matmul (torchquat._planes)."""
+    """The forms :data:`ANGLE_FORMS` and ``|abcd|^2`` as one matrix of q's 10 products (10 x 8), and
+    the forms from R's entries (9 x 7, with the offset), for the eager path's single matmul
+    (torchquat._planes); and a matrix's ``|abcd|^2``, a constant (1, or 2 for Tait-Bryan)."""
     quat_table, matrix_table, offset, _, _ = forms_tables(name)
     pairs = tuple(tuple(quat_table[4 * i + j][f] + (quat_table[4 * j + i][f] if i != j else 0.0)
-                        for f in range(len(offset))) for i, j in PAIRS)
-    return pairs, tuple(map(tuple, matrix_table)), tuple(offset)
+                        for f in ANGLE_FORMS + (13,)) for i, j in PAIRS)
+    assert not any(row[13] for row in matrix_table)
+    return (pairs, tuple(tuple(row[f] for f in ANGLE_FORMS) for row in matrix_table),
+            tuple(offset[f] for f in ANGLE_FORMS), offset[13])
 
 
 DENSE = {name: _dense_tables(name) for name in EULER_CONVENTIONS}
 
 
-def angles_columnwise(forms, conv: EulerConvention, eps: float, nan_where: Optional[Tensor] = None,
-                      share: float = 1.0) -> Tensor:
+def angles_parts(forms, conv: EulerConvention, eps: float, abcd2, nan_where: Optional[Tensor] = None):
     """The same angles as ``torchquat._euler_small``, written column by column with the tables'
     numbers as literals: for large batches (a handful of passes over 1-D columns instead of
     strided pair tensors) and for ``torch.compile``, which fuses it into one vectorised loop.
-    Rows where ``nan_where`` holds come out as NaN; ``share``: as for ``torchquat._planes.rows``."""
-    f = forms
-    two_h = safe_sqrt(f[0] * f[0] + f[1] * f[1])
-    ab2, cd2 = f[10], f[11]
-    near_zero = ab2 >= cd2
+
+    ``forms``: the :data:`ANGLE_FORMS` (their scale is free), ``abcd2``: ``|abcd|^2`` on the same
+    scale (a tensor, or a number). Rows where ``nan_where`` holds come out as NaN. Returns the
+    three angles and what :func:`forms_gradient` needs."""
+    y1, x1, y_zero, x_zero, y_pi, x_pi, z = forms
+    two_h = safe_sqrt(y1 * y1 + x1 * x1)
+    near_zero = z >= 0 if conv.symmetric else z <= 0  # |ab| >= |cd|: the small path's test
     tb = forms_tables(conv.name)[3]
     if torch.compiler.is_compiling():  # (inductor's where is a branch-free blend)
+        weight = None
+
         def pick(if_near_zero, if_near_pi):
             return torch.where(near_zero, if_near_zero, if_near_pi)
         step = torch.where(near_zero, -float(tb), float(tb))
@@ -169,23 +184,59 @@ def angles_columnwise(forms, conv: EulerConvention, eps: float, nan_where: Optio
         # Which double angle (middle near 0 or near pi) is a coin toss per row: an eager `where`
         # on it mispredicts a branch per element (4 ms per 1e6, 6x a lerp), so choose with lerp,
         # whose weights 0 and 1 return either end exactly.
-        weight = near_zero.to(ab2.dtype)
+        weight = near_zero.to(z.dtype)
 
         def pick(if_near_zero, if_near_pi):
             return torch.lerp(if_near_pi, if_near_zero, weight)
         step = weight * (-2.0 * tb) + tb
-    locked = two_h <= (ab2 + cd2) * math.sin(eps)  # sin(middle) <= sin(eps), as the small path
-    y1, x1 = f[0], f[1]
-    if conv.intrinsic:
-        y1, x1 = torch.where(locked, 0.0, y1), torch.where(locked, 1.0, x1)
-    else:
-        y1, x1 = torch.where(locked, pick(f[6], f[8]), y1), torch.where(locked, pick(f[7], f[9]), x1)
-    t1 = torch.atan2(y1, x1)
-    middle = torch.atan2(two_h, f[12]) if conv.symmetric else torch.atan2(f[12], two_h)
-    double = torch.atan2(pick(f[2], f[4]), pick(f[3], f[5]))
+    locked = two_h <= abcd2 * math.sin(eps)  # sin(middle) <= sin(eps), as the small path
+    y1_used, x1_used = torch.where(locked, 0.0, y1), torch.where(locked, 1.0, x1)  # t1 = 0 at lock
+    t1 = torch.atan2(y1_used, x1_used)
+    middle = torch.atan2(two_h, z) if conv.symmetric else torch.atan2(z, two_h)
+    y_double, x_double = pick(y_zero, y_pi), pick(x_zero, x_pi)
+    double = torch.atan2(y_double, x_double)
     t3 = torch.addcmul(double, t1, step)  # D - tb t1 near 0, D + tb t1 near pi
     t3 = t3 - torch.round(t3 * (0.5 / math.pi)) * (2.0 * math.pi)  # into [-pi, pi], branch-free
-    angles = (t3, middle, t1) if conv.intrinsic else (t1, middle, torch.where(locked, 0.0, t3))
+    if conv.intrinsic:
+        angles = (t3, middle, t1)
+    else:  # SciPy's rule moves the rotation into the first angle at lock: there t3 = D, and the
+        # lock pair (2ab, a^2 - b^2) or (-2cd, c^2 - d^2) is the double angle's up to sign: -step D
+        angles = (torch.where(locked, -step * t3, t1), middle, torch.where(locked, 0.0, t3))
     if nan_where is not None:
         angles = [torch.where(nan_where, torch.nan, a) for a in angles]
-    return rows(angles, share=share)
+    return angles, (y1, x1, y1_used, x1_used, y_double, x_double, two_h, z, locked, weight, step)
+
+
+def angles_columnwise(forms, conv: EulerConvention, eps: float, abcd2, nan_where: Optional[Tensor] = None,
+                      share: float = 1.0) -> Tensor:
+    """The angles of :func:`angles_parts` side by side; ``share``: as for ``torchquat._planes.rows``."""
+    return rows(angles_parts(forms, conv, eps, abcd2, nan_where)[0], share=share)
+
+
+def forms_gradient(grad, saved, conv: EulerConvention):
+    """The gradient of :func:`angles_parts`' angles (``grad``: three columns) with respect to the
+    forms, from ``d atan2(y, x) = (x dy - y dx) / (x^2 + y^2)``: about 30 passes where autograd's
+    backward through the forward takes about 60. t1 is a constant at lock; the wrap into
+    ``[-pi, pi]`` has derivative 1; a pick passes the gradient to the form it took (weight 0 or 1)."""
+    y1, x1, y1_used, x1_used, y_double, x_double, two_h, z, locked, weight, step = saved
+    g_first, g_middle, g_third = grad
+    zero = constant("zero", 0.0, g_first)
+    if conv.intrinsic:  # (t3, middle, t1), t3 = D + step t1
+        g_double = g_first
+        g_t1 = torch.where(locked, zero, torch.addcmul(g_third, step, g_first))
+    else:  # (t1, or -step t3 at lock; middle; t3, or 0 at lock)
+        g_double = torch.where(locked, -step * g_first, g_third)
+        g_t1 = torch.addcmul(g_first, step, g_double)  # (0 at lock: step^2 = 1)
+    r1 = g_t1 / torch.addcmul(x1_used * x1_used, y1_used, y1_used)
+    r_double = g_double / torch.addcmul(x_double * x_double, y_double, y_double)
+    r_middle = g_middle / torch.addcmul(z * z, two_h, two_h)
+    if conv.symmetric:  # middle = atan2(2h, z)
+        g_two_h, g_z = r_middle * z, -r_middle * two_h
+    else:  # atan2(z, 2h)
+        g_two_h, g_z = -r_middle * z, r_middle * two_h
+    s = g_two_h / zero_to_inf(two_h)  # 2h = |(y1, x1)|: 0 at 2h = 0, as safe_sqrt's gradient
+    g_y1 = torch.addcmul(r1 * x1_used, s, y1)
+    g_x1 = torch.addcmul(-r1 * y1_used, s, x1)
+    g_y_double, g_x_double = r_double * x_double, -r_double * y_double
+    g_y_zero, g_x_zero = g_y_double * weight, g_x_double * weight
+    return [g_y1, g_x1, g_y_zero, g_x_zero, g_y_double - g_y_zero, g_x_double - g_x_zero, g_z]

@@ -48,10 +48,11 @@ over memory. Both give the same results to rounding; the tests run both."""
 PLANAR_ROWS = 32768
 """Eager CPU batches from ``share *`` this many rows work on contiguous columns
 (``torchquat._planes``), each kernel with the share of its measured crossover (forward+backward):
-1/4 (8,192 rows) for quat -> matrix, the product, rotating vectors, 6D and the matrix distance,
-1/2 for matrix -> quat and the quaternion distance, 1 for Euler -> quat, matrix -> Euler and
-axis-angle -> quat, 4 for quat -> Euler. Below, strided columns still sit in cache and the
-transposing matmuls and their backward nodes cost more than they save."""
+1/32 (1,024 rows: every large batch) for matrix -> Euler, 1/4 (8,192 rows) for quat -> matrix,
+the product, rotating vectors, 6D and the matrix distance, 1/2 for matrix -> quat and the
+quaternion distance, 1 for Euler -> quat and axis-angle -> quat, 2 for quat -> Euler. Below,
+strided columns still sit in cache and the transposing matmuls and their backward nodes cost
+more than they save."""
 
 
 def matmul_rounds(x: Tensor) -> bool:

@@ -19,9 +19,9 @@ import torch
 from torch import Tensor
 
 from . import _closed_form as closed_form
-from ._closed_form import jacobian_rule
+from ._closed_form import Rule, jacobian_rule
 from ._dispatch import kernel
-from ._euler_forms import COLUMNWISE, DENSE, PAIRS, angles_columnwise
+from ._euler_forms import ANGLE_FORMS, COLUMNWISE, DENSE, PAIRS, angles_columnwise, angles_parts, forms_gradient
 from ._euler_small import euler_angles, lock, matrix_layout, quat_layout
 from ._math import bilinear, bilinear_terms, combine, constant, contract, is_small
 from ._planes import columns, combinations, planar, rows
@@ -89,8 +89,11 @@ _SIGN_TABLES: Dict[str, Tuple[Tuple[int, ...], ...]] = {
 }
 _MATRIX_TABLES = {name: _matrix_table(conv) for name, conv in EULER_CONVENTIONS.items()}
 _HALF = ((0.5, 0.0, 0.0), (0.0, 0.5, 0.0), (0.0, 0.0, 0.5))
-# quat -> Euler: contiguous columns from 131,072 rows (it loses up to 1.2x with the backward at 16-65k)
-_QUAT_TO_EULER_PLANAR_SHARE = 4.0
+_HALF4 = tuple(tuple(0.5 * v for v in row) for row in _UNIT)
+# Contiguous columns (measured crossovers, with the closed-form backward): quat -> Euler from 65,536
+# rows (its forward is 1.06-1.13x slower at 8-32k); matrix -> Euler from the large path's first
+# rows (0.91-0.95 of the strided code's time at 1,100-8,192 rows, forward and forward+backward)
+_QUAT_TO_EULER_PLANAR_SHARE, _MATRIX_TO_EULER_PLANAR_SHARE = 2.0, 1.0 / 32
 _SIGN_BILINEAR = {name: bilinear_terms(table, 2) for name, table in _SIGN_TABLES.items()}  # (column-wise form)
 
 
@@ -183,19 +186,74 @@ def _euler_to_quat_with_jacobian(angles: Tensor, convention: EulerConvention):
 _EULER_TO_QUAT = jacobian_rule(_euler_to_quat_small, _euler_to_quat_with_jacobian)
 
 
+def _euler_to_quat_columnwise_parts(angles: Tensor, convention: EulerConvention):
+    """Column by column (fewer passes; under compile one fused loop): the quaternion, and what the
+    closed-form backward needs (its columns, and the left factor's half-angle cosine and sine)."""
+    cs = [(torch.cos(h), torch.sin(h)) for h in columns(angles, _HALF, "half3")]
+    pairs = [u * v for u in cs[0] for v in cs[1]]
+    # the table's row 4 m1 + 2 m2 + m3 is pair 2 m1 + m2 times factor m3 of the third angle:
+    # two terms per component (one product of three elementary quaternions)
+    q = bilinear(pairs, cs[2], _SIGN_BILINEAR[convention.name])
+    sign = torch.copysign(constant("one", 1.0, q[0]), q[0])  # w >= 0 (a where on w < 0 mispredicts)
+    q = [c * sign for c in q]
+    return rows(q), (*q, *cs[_ANGLE_TERMS[convention.name][0]])
+
+
+def _euler_to_quat_columnwise(angles: Tensor, convention: EulerConvention) -> Tensor:
+    return _euler_to_quat_columnwise_parts(angles, convention)[0]
+
+
+def _angle_terms(convention: EulerConvention):
+    """For the closed-form backward of Euler -> quat: the left factor's angle, and the bilinear
+    terms of ``<g, e_L q>``, ``<g, e_M q>``, ``<g, (e_L x e_M) q>`` and ``<g, q e_R>`` (g, q as columns).
+
+    ``q = L M R``, three elementary quaternions ``cos(a/2) + sin(a/2) e`` (intrinsic: the angles
+    in letter order; extrinsic: reversed). ``dL/da = e_L L / 2`` gives ``dq = e_L q da / 2`` for the
+    left angle, ``q e_R da / 2`` for the right one, and ``L e_M L^-1 q da / 2`` for the middle, where
+    ``L e_M L^-1 = cos(a_L) e_M + sin(a_L) e_L x e_M`` (``e_L`` is perpendicular to ``e_M``)."""
+    order = (0, 1, 2) if convention.intrinsic else (2, 1, 0)
+    left, right = order[0], order[2]
+    e_left, e_middle, e_right = (convention.axes[n] + 1 for n in order)  # basis quaternions 1-3
+    cross_quat = basis_product(_UNIT[e_left], _UNIT[e_middle])  # e_L x e_M = e_L e_M (perpendicular)
+    table = []  # row 4 i + j: coefficients of g_i q_j in the four forms
+    for i in range(4):
+        for j in range(4):
+            table.append([basis_product(_UNIT[e_left], _UNIT[j])[i],
+                          basis_product(_UNIT[e_middle], _UNIT[j])[i],
+                          basis_product(cross_quat, _UNIT[j])[i],
+                          basis_product(_UNIT[j], _UNIT[e_right])[i]])
+    return left, right, bilinear_terms(table, 4)
+
+
+_ANGLE_TERMS = {name: _angle_terms(conv) for name, conv in EULER_CONVENTIONS.items()}
+
+
+def _euler_to_quat_columnwise_backward(grad: Tensor, inputs, saved, convention: EulerConvention):
+    q, (c, s) = saved[:4], saved[4:]
+    left, right, terms = _ANGLE_TERMS[convention.name]
+    half = columns(grad, _HALF4, "half4")  # (the chain rule's 1/2 of half angles, in the transpose)
+    g_left, g_middle, g_cross, g_right = bilinear(half, q, terms)
+    # middle: cos(a_L) <g, e_M q> + sin(a_L) <g, (e_L x e_M) q>, from the half angle's c and s
+    cosine = torch.addcmul(c * c, s, s, value=-1.0)
+    g_middle = torch.addcmul(cosine * g_middle, s * c, g_cross, value=2.0)
+    gradient = [g_middle] * 3
+    gradient[left], gradient[right] = g_left, g_right
+    return (rows(gradient),)
+
+
+_EULER_TO_QUAT_COLUMNWISE = Rule(_euler_to_quat_columnwise, _euler_to_quat_columnwise_parts,
+                                 _euler_to_quat_columnwise_backward)
+
+
 @kernel
 def euler_to_quat_unchecked(angles: Tensor, convention: EulerConvention) -> Tensor:
-    if not is_small(angles, 3, share=0.25):  # column by column: fewer passes; under compile one fused loop
-        cs = [(torch.cos(h), torch.sin(h)) for h in columns(angles, _HALF, "half3")]
-        pairs = [u * v for u in cs[0] for v in cs[1]]
-        # the table's row 4 m1 + 2 m2 + m3 is pair 2 m1 + m2 times factor m3 of the third angle:
-        # two terms per component (one product of three elementary quaternions)
-        q = bilinear(pairs, cs[2], _SIGN_BILINEAR[convention.name])
-        sign = torch.copysign(constant("one", 1.0, q[0]), q[0])  # w >= 0 (a where on w < 0 mispredicts)
-        return rows([c * sign for c in q])
-    if is_small(angles, 3, share=0.125):  # above ~500 rows the 4-slot outer product costs more than autograd saves
-        return closed_form.apply(_EULER_TO_QUAT, angles, convention=convention)
-    return _euler_to_quat_small(angles, convention)
+    # column by column from 513 rows, with its closed-form backward (forward+backward: 1.6x faster
+    # than the tables at 1,024 rows, even at 512; the tables' forward leads by 10% up to ~1,500)
+    if not is_small(angles, 3, share=0.125):
+        if torch.compiler.is_compiling():
+            return _euler_to_quat_columnwise(angles, convention)
+        return closed_form.apply(_EULER_TO_QUAT_COLUMNWISE, angles, convention=convention)
+    return closed_form.apply(_EULER_TO_QUAT, angles, convention=convention)
 
 
 def _to_radians(angles: Tensor, degrees: bool) -> Tensor:
@@ -282,27 +340,94 @@ def euler_to_matrix(angles: Tensor, convention: str, degrees: bool = False) -> T
     return restore(euler_to_matrix_unchecked(_to_radians(angles, degrees), convention=conv), dtype)
 
 
+def _quat_to_euler_planar_parts(q: Tensor, convention: EulerConvention, eps: float):
+    """Contiguous columns: the forms from q's 10 products in one matmul; the angles, and what the
+    closed-form backward needs."""
+    share = _QUAT_TO_EULER_PLANAR_SHARE
+    components = columns(q, share=share)
+    products = [components[u] * components[v] for u, v in PAIRS]
+    *forms, abcd2 = combinations(products, DENSE[convention.name][0], "euler_q_" + convention.name, share=share)
+    angles, saved = angles_parts(forms, convention, eps, abcd2, nan_where=abcd2 == 0)
+    return rows(angles, share=share), (*components, *saved)
+
+
+def _quat_to_euler_planar(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
+    return _quat_to_euler_planar_parts(q, convention, eps)[0]
+
+
+def _product_gradient_terms(name: str):
+    """For the backward of the forms' products: the forms' gradient to the products' (the
+    transposed table, 7 x 10), and the bilinear terms of ``d(q_u q_v) = q_v dq_u + q_u dq_v``
+    (row ``4 p + v``: the product p's gradient times component v, to component u)."""
+    pairs_table = DENSE[name][0]
+    transposed = tuple(tuple(row[f] for row in pairs_table) for f in range(len(ANGLE_FORMS)))
+    table = [[0.0] * 4 for _ in range(4 * len(PAIRS))]
+    for p, (u, v) in enumerate(PAIRS):
+        table[4 * p + v][u] += 1.0
+        table[4 * p + u][v] += 1.0
+    return transposed, bilinear_terms(table, 4)
+
+
+_PRODUCT_GRADIENT = {name: _product_gradient_terms(name) for name in EULER_CONVENTIONS}
+
+
+def _quat_to_euler_planar_backward(grad: Tensor, inputs, saved, convention: EulerConvention, eps: float):
+    share = _QUAT_TO_EULER_PLANAR_SHARE
+    components, saved = saved[:4], saved[4:]
+    transposed, terms = _PRODUCT_GRADIENT[convention.name]
+    g_forms = forms_gradient(columns(grad, share=share), saved, convention)
+    g_products = combinations(g_forms, transposed, "euler_q_grad_" + convention.name, share=share)
+    return (rows(bilinear(g_products, components, terms), share=share),)
+
+
+_QUAT_TO_EULER_PLANAR = Rule(_quat_to_euler_planar, _quat_to_euler_planar_parts, _quat_to_euler_planar_backward)
+
+
+def _matrix_to_euler_columnwise_parts(R: Tensor, convention: EulerConvention, eps: float):
+    """The forms from R's entries (eager CPU: one matmul; else one pass per term); the angles, and
+    what the closed-form backward needs."""
+    _, table, offset, abcd2 = DENSE[convention.name]
+    forms = columns(R.flatten(-2), table, "euler_R_" + convention.name, offset, share=_MATRIX_TO_EULER_PLANAR_SHARE)
+    angles, saved = angles_parts(forms, convention, eps, abcd2)
+    return rows(angles, share=_MATRIX_TO_EULER_PLANAR_SHARE), saved
+
+
+def _matrix_to_euler_columnwise(R: Tensor, convention: EulerConvention, eps: float) -> Tensor:
+    return _matrix_to_euler_columnwise_parts(R, convention, eps)[0]
+
+
+# the forms' gradient to R's entries: the matrix tables transposed (7 x 9)
+_MATRIX_FORMS_TRANSPOSED = {name: tuple(zip(*DENSE[name][1])) for name in EULER_CONVENTIONS}
+
+
+def _matrix_to_euler_columnwise_backward(grad: Tensor, inputs, saved, convention: EulerConvention, eps: float):
+    share = _MATRIX_TO_EULER_PLANAR_SHARE
+    g_forms = forms_gradient(columns(grad, share=share), saved, convention)  # the forms are linear in R
+    g_R = rows(g_forms, _MATRIX_FORMS_TRANSPOSED[convention.name], "euler_R_grad_" + convention.name, share=share)
+    return (g_R.view(inputs[0].shape),)
+
+
+_MATRIX_TO_EULER_COLUMNWISE = Rule(_matrix_to_euler_columnwise, _matrix_to_euler_columnwise_parts,
+                                   _matrix_to_euler_columnwise_backward)
+
+
 @kernel
 def quat_to_euler_unchecked(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
-    if planar(q, 4, _QUAT_TO_EULER_PLANAR_SHARE):  # contiguous columns; the 14 forms from q's 10 products in one matmul
-        share = _QUAT_TO_EULER_PLANAR_SHARE
-        components = columns(q, share=share)
-        products = [components[u] * components[v] for u, v in PAIRS]
-        forms = combinations(products, DENSE[convention.name][0], "euler_q_" + convention.name, share=share)
-        return angles_columnwise(forms, convention, eps, nan_where=forms[13] == 0, share=share)
+    if planar(q, 4, _QUAT_TO_EULER_PLANAR_SHARE):
+        return closed_form.apply(_QUAT_TO_EULER_PLANAR, q, convention=convention, eps=eps)
     if not is_small(q, 4, share=0.25):  # crossover measured near 1000 rows
         abcd_terms, pair_terms = COLUMNWISE[convention.name]
         components = columns(q)  # once: under compile each unbind's backward is an (N, 4) buffer of its own
         abcd = [combine(components, terms) for terms in abcd_terms]
         products = [abcd[u] * abcd[v] for u, v in PAIRS]
-        forms = [combine(products, terms) for terms in pair_terms]
+        *forms, abcd2 = [combine(products, terms) for terms in pair_terms]
         # Every atan2 pair and the lock test are scale-invariant; only q = 0 (all forms 0) must
-        # come out as NaN, not a plausible (0, 0, 0). Eager: a where on each angle (13 fewer
+        # come out as NaN, not a plausible (0, 0, 0). Eager: a where on each angle (7 fewer
         # passes); compiled: dividing by |abcd|^2 fuses for free, and a where does not.
         if torch.compiler.is_compiling():
-            inverse = 1.0 / forms[13]
-            return angles_columnwise([form * inverse for form in forms[:13]], convention, eps)
-        return angles_columnwise(forms, convention, eps, nan_where=forms[13] == 0)
+            inverse = 1.0 / abcd2
+            return angles_columnwise([form * inverse for form in forms], convention, eps, 1.0)
+        return angles_columnwise(forms, convention, eps, abcd2, nan_where=abcd2 == 0)
     return euler_angles(q, convention, eps, is_matrix=False)
 
 
@@ -339,8 +464,9 @@ def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Option
 @kernel
 def matrix_to_euler_unchecked(R: Tensor, convention: EulerConvention, eps: float) -> Tensor:
     if not is_small(R, 9, share=0.25):  # crossover measured near 1000 rows (with the closed-form backward)
-        _, table, offset = DENSE[convention.name]  # (eager CPU: one matmul; else one pass per term)
-        return angles_columnwise(columns(R.flatten(-2), table, "euler_R_" + convention.name, offset), convention, eps)
+        if torch.compiler.is_compiling():
+            return _matrix_to_euler_columnwise(R, convention, eps)
+        return closed_form.apply(_MATRIX_TO_EULER_COLUMNWISE, R, convention=convention, eps=eps)
     return euler_angles(R, convention, eps, is_matrix=True)
 
 
