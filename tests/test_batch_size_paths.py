@@ -60,6 +60,45 @@ def test_planar_columns_and_rows_round_trip_exactly(monkeypatch):
         assert torch.equal(_planes.rows(cols), v) and _planes.rows(cols).is_contiguous()
 
 
+@pytest.mark.parametrize("name", PATH_DEPENDENT)
+def test_planes_written_in_place_give_the_same_numbers(name, monkeypatch):
+    # Where nothing records a graph (a closed form's forward and backward, values) the last passes
+    # write into one plane_buffer that rows() transposes without a stack: the same numbers as stacking
+    from torchquat import axis_angle, distance, euler, quaternion
+    fn, generic, singular = ALL[name]
+    monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 0)
+    monkeypatch.setattr(tqmath, "PLANAR_ROWS", 0)
+
+    def run():
+        results = []
+        for make in (generic, singular):
+            inputs = tuple(x.clone().requires_grad_() for x in make())
+            out = fn(*inputs)
+            grad = torch.randn(out.shape, dtype=out.dtype, generator=torch.Generator().manual_seed(3))
+            results += [out.detach(), *torch.autograd.grad(out, inputs, grad)]
+            with torch.no_grad():
+                results.append(fn(*make()))
+        return results
+
+    written = run()
+    for module in (axis_angle, distance, euler, quaternion):
+        monkeypatch.setattr(module, "plane_buffer", lambda *args, **kwargs: None)
+    for a, b in zip(written, run()):
+        torch.testing.assert_close(a, b, rtol=0, atol=0, equal_nan=True)
+
+
+def test_plane_buffer_only_where_nothing_records(monkeypatch):
+    monkeypatch.setattr(tqmath, "PLANAR_ROWS", 0)
+    a, b = torch.randn(5, 1), torch.randn(1, 3)
+    assert _planes.plane_buffer(4, [a, b]).shape == (4, 5, 3)  # the broadcast batch shape
+    leaf = a.clone().requires_grad_()
+    assert _planes.plane_buffer(4, [leaf, b]) is None  # autograd refuses out=
+    with torch.no_grad():
+        assert _planes.plane_buffer(4, [leaf, b]) is not None
+    monkeypatch.setattr(tqmath, "PLANAR_ROWS", 10**12)
+    assert _planes.plane_buffer(4, [a, b]) is None  # strided columns: rows() stacks them
+
+
 def test_a_batch_above_the_threshold_matches_one_below():
     q = torch.cat([singular_quats(), tq.random_quat(5000, generator=torch.Generator().manual_seed(0), dtype=torch.float64)])
     assert q.shape[0] > tqmath.SMALL_BATCH_ROWS

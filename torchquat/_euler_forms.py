@@ -213,11 +213,12 @@ def angles_columnwise(forms, conv: EulerConvention, eps: float, abcd2, nan_where
     return rows(angles_parts(forms, conv, eps, abcd2, nan_where)[0], share=share)
 
 
-def forms_gradient(grad, saved, conv: EulerConvention):
+def forms_gradient(grad, saved, conv: EulerConvention, out: Optional[Tensor] = None):
     """The gradient of :func:`angles_parts`' angles (``grad``: three columns) with respect to the
     forms, from ``d atan2(y, x) = (x dy - y dx) / (x^2 + y^2)``: about 30 passes where autograd's
     backward through the forward takes about 60. t1 is a constant at lock; the wrap into
-    ``[-pi, pi]`` has derivative 1; a pick passes the gradient to the form it took (weight 0 or 1)."""
+    ``[-pi, pi]`` has derivative 1; a pick passes the gradient to the form it took (weight 0 or 1).
+    ``out``: an optional ``torchquat._planes.plane_buffer`` of 7 rows to write them into."""
     y1, x1, y1_used, x1_used, y_double, x_double, two_h, z, locked, weight, step = saved
     g_first, g_middle, g_third = grad
     zero = constant("zero", 0.0, g_first)
@@ -230,13 +231,13 @@ def forms_gradient(grad, saved, conv: EulerConvention):
     r1 = g_t1 / torch.addcmul(x1_used * x1_used, y1_used, y1_used)
     r_double = g_double / torch.addcmul(x_double * x_double, y_double, y_double)
     r_middle = g_middle / torch.addcmul(z * z, two_h, two_h)
+    slot = (lambda i: None) if out is None else out.__getitem__
     if conv.symmetric:  # middle = atan2(2h, z)
-        g_two_h, g_z = r_middle * z, -r_middle * two_h
+        g_two_h, g_z = r_middle * z, torch.addcmul(zero, r_middle, two_h, value=-1.0, out=slot(6))
     else:  # atan2(z, 2h)
-        g_two_h, g_z = -r_middle * z, r_middle * two_h
+        g_two_h, g_z = torch.addcmul(zero, r_middle, z, value=-1.0), torch.mul(r_middle, two_h, out=slot(6))
     s = g_two_h / zero_to_inf(two_h)  # 2h = |(y1, x1)|: 0 at 2h = 0, as safe_sqrt's gradient
-    g_y1 = torch.addcmul(r1 * x1_used, s, y1)
-    g_x1 = torch.addcmul(-r1 * y1_used, s, x1)
     g_y_double, g_x_double = r_double * x_double, -r_double * y_double
-    g_y_zero, g_x_zero = g_y_double * weight, g_x_double * weight
-    return [g_y1, g_x1, g_y_zero, g_x_zero, g_y_double - g_y_zero, g_x_double - g_x_zero, g_z]
+    g_y_zero, g_x_zero = torch.mul(g_y_double, weight, out=slot(2)), torch.mul(g_x_double, weight, out=slot(3))
+    return [torch.addcmul(r1 * x1_used, s, y1, out=slot(0)), torch.addcmul(-r1 * y1_used, s, x1, out=slot(1)),
+            g_y_zero, g_x_zero, torch.sub(g_y_double, g_y_zero, out=slot(4)), torch.sub(g_x_double, g_x_zero, out=slot(5)), g_z]

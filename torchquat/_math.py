@@ -133,18 +133,23 @@ def bilinear_terms(table, n_b: int):
                  for terms, _ in sparse_columns(table))
 
 
-def bilinear(a, b, terms):
+def bilinear(a, b, terms, out=None):
     """``sum_ij T[i * len(b) + j] a_i b_j`` for each column of a table given as its
     :func:`bilinear_terms`, from the columns ``a`` and ``b``: one product and one ``addcmul`` per
-    term, each a single pass."""
-    out = []
-    for (i, j, k), *rest in terms:
-        total = a[i] * b[j]
-        total = total if k == 1 else total * k
-        for i, j, k in rest:
-            total = torch.addcmul(total, a[i], b[j], value=k)
-        out.append(total)
-    return out
+    term, each a single pass. ``out``: optional planes (``torchquat._planes.plane_buffer``), or
+    ``None`` entries, that each column's last pass writes into."""
+    results = []
+    for c, ((i, j, k), *rest) in enumerate(terms):
+        target = None if out is None else out[c]
+        if not rest:
+            total = torch.mul(a[i], b[j], out=target) if k == 1 else torch.mul(a[i] * b[j], k, out=target)
+        else:
+            total = a[i] * b[j]
+            total = total if k == 1 else total * k
+            for n, (i, j, k) in enumerate(rest, 1):
+                total = torch.addcmul(total, a[i], b[j], value=k, out=target if n == len(rest) else None)
+        results.append(total)
+    return results
 
 
 def contract(x: Tensor, name: str, values) -> Tensor:

@@ -12,7 +12,7 @@ from . import _closed_form as closed_form
 from ._closed_form import Rule, jacobian_rule
 from ._dispatch import kernel
 from ._math import constant, is_small, small_angle_threshold, sum_of_squares
-from ._planes import columns, rows
+from ._planes import columns, plane_buffer, rows, slot
 from ._validation import prepare, restore
 from .matrix import matrix_to_quat_unchecked
 
@@ -196,7 +196,9 @@ def _axis_angle_to_quat_columnwise_parts(v: Tensor):
     sinc = torch.where(x2 < torch.finfo(v.dtype).eps ** 2, 1.0, torch.sin(x) / x)
     sign = torch.copysign(torch.ones_like(cos_half), cos_half)  # (an eager where on a random sign mispredicts)
     s = sinc * sign
-    return rows((cos_half * sign, *(c * s for c in h))), (*h, x2, cos_half, sinc, sign)
+    buffer = plane_buffer(4, h)
+    q = [torch.mul(cos_half, sign, out=slot(buffer, 0))] + [torch.mul(c, s, out=slot(buffer, i)) for i, c in enumerate(h, 1)]
+    return rows(q if buffer is None else buffer), (*h, x2, cos_half, sinc, sign)
 
 
 def _axis_angle_to_quat_columnwise_backward(grad: Tensor, inputs, saved):
@@ -212,7 +214,9 @@ def _axis_angle_to_quat_columnwise_backward(grad: Tensor, inputs, saved):
         dot = torch.addcmul(dot, g, c)
     s = sinc * sign
     along = torch.addcmul(k * sign * dot, s, g_w, value=-1.0)
-    return (rows([torch.addcmul(s * g, along, c) for g, c in zip(g_u, h)]),)
+    buffer = plane_buffer(3, h)
+    g_v = [torch.addcmul(s * g, along, c, out=slot(buffer, i)) for i, (g, c) in enumerate(zip(g_u, h))]
+    return (rows(g_v if buffer is None else buffer),)
 
 
 _HALF4 = tuple(tuple(0.5 * float(i == j) for j in range(4)) for i in range(4))
@@ -243,7 +247,9 @@ def _quat_to_axis_angle_columnwise_parts(q: Tensor):
     n = torch.sqrt(n2)
     # angle / (2 n), signed by the hemisphere (as the table path, copysign: m >= 0); rows() doubles it
     m = torch.copysign(torch.where(small, torch.reciprocal(w), torch.atan2(n, w) / n), w0)
-    return rows([c * m for c in u], _DOUBLE, "double3"), (w0, *u, n2, small, m)
+    buffer = plane_buffer(3, u)
+    v = [torch.mul(c, m, out=slot(buffer, i)) for i, c in enumerate(u)]
+    return rows(v if buffer is None else buffer, _DOUBLE, "double3"), (w0, *u, n2, small, m)
 
 
 _DOUBLE = ((2.0, 0.0, 0.0), (0.0, 2.0, 0.0), (0.0, 0.0, 2.0))
@@ -258,11 +264,12 @@ def _quat_to_axis_angle_columnwise_backward(grad: Tensor, inputs, saved):
     for a, b in zip(g[1:], u[1:]):
         dot = torch.addcmul(dot, a, b)
     rho = torch.reciprocal(torch.addcmul(n2, w0, w0))  # 1 / (n^2 + w^2)
-    g_w0 = torch.where(w0 == 0, 0.0, dot * rho)  # (0 at w0 = 0, as autograd's |w0|)
+    buffer = plane_buffer(4, g)
+    g_w0 = torch.where(w0 == 0, constant("zero", 0.0, w0), dot * rho, out=slot(buffer, 0))  # (0 at w0 = 0, as autograd's |w0|)
     # -k / 2 = (m - w0 rho) / n^2 (the series branch: n^2 -> 1, a term below rounding)
     minus_k_dot = torch.addcmul(m, w0, rho, value=-1.0) / torch.where(small, 1.0, n2) * dot
-    return (rows([g_w0] + [torch.addcmul(m * a, minus_k_dot, b, value=-1.0) for a, b in zip(g, u)],
-                 _NEGATE_FIRST_DOUBLE, "negate_first_double"),)
+    g_q = [g_w0] + [torch.addcmul(m * a, minus_k_dot, b, value=-1.0, out=slot(buffer, i)) for i, (a, b) in enumerate(zip(g, u), 1)]
+    return (rows(g_q if buffer is None else buffer, _NEGATE_FIRST_DOUBLE, "negate_first_double"),)
 
 
 _NEGATE_FIRST_DOUBLE = ((-2.0, 0.0, 0.0, 0.0), (0.0, 2.0, 0.0, 0.0), (0.0, 0.0, 2.0, 0.0), (0.0, 0.0, 0.0, 2.0))

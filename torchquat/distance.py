@@ -7,7 +7,7 @@ from . import _closed_form as closed_form
 from ._closed_form import Rule
 from ._dispatch import kernel
 from ._math import constant, is_small, safe_sqrt, sum_of_squares, zero_to_inf
-from ._planes import columns, planar, rows
+from ._planes import columns, planar, plane_buffer, rows, slot
 from ._validation import prepare_pair, restore
 
 __all__ = ["quat_geodesic_distance", "matrix_geodesic_distance"]
@@ -125,13 +125,14 @@ def _quat_distance_columnwise_backward(grad: Tensor, inputs, saved):
     alpha = c * dot.abs() / zero_to_inf(wedge)
     beta = c * wedge * torch.sign(dot)
     alphas = {1.0: alpha, -1.0: -alpha}
+    buffers = plane_buffer(4, a + b, _QUAT_PLANAR_SHARE), plane_buffer(4, a + b, _QUAT_PLANAR_SHARE)
     g_a, g_b = [], []
     for k in range(4):
         sign, total = _minor_contraction(minors, b, k)
-        g_a.append(torch.addcmul(alphas[sign] * total, beta, b[k], value=-1.0))
+        g_a.append(torch.addcmul(alphas[sign] * total, beta, b[k], value=-1.0, out=slot(buffers[0], k)))
         sign, total = _minor_contraction(minors, a, k)
-        g_b.append(torch.addcmul(alphas[-sign] * total, beta, a[k], value=-1.0))
-    return rows(g_a, share=_QUAT_PLANAR_SHARE), rows(g_b, share=_QUAT_PLANAR_SHARE)
+        g_b.append(torch.addcmul(alphas[-sign] * total, beta, a[k], value=-1.0, out=slot(buffers[1], k)))
+    return tuple(rows(g if buffer is None else buffer, share=_QUAT_PLANAR_SHARE) for g, buffer in zip((g_a, g_b), buffers))
 
 
 _QUAT_DISTANCE_COLUMNWISE = Rule(_quat_distance_columnwise, _quat_distance_columnwise_parts,
@@ -227,16 +228,19 @@ _DISTANCE_TERMS = {False: _signed_terms(False), True: _signed_terms(True)}
 
 
 def _times_matrix(factors, X, transpose: bool):
-    """``K X`` (or ``K^T X``) entry by entry, K's entries as signed ``factors``, X as 9 columns."""
+    """``K X`` (or ``K^T X``) entry by entry, K's entries as signed ``factors``, X as 9 columns:
+    side by side (written into a ``plane_buffer`` where there is one)."""
+    buffer = plane_buffer(9, [*factors, *X], _MATRIX_PLANAR_SHARE)
     out = []
     for terms in _DISTANCE_TERMS[transpose]:
         (_, k, m), rest = terms[0], terms[1:]
         for j in range(3):
             total = factors[k] * X[3 * m + j]
-            for sign, k2, m2 in rest:
-                total = torch.addcmul(total, factors[k2], X[3 * m2 + j], value=sign)
+            for n, (sign, k2, m2) in enumerate(rest, 1):
+                total = torch.addcmul(total, factors[k2], X[3 * m2 + j], value=sign,
+                                      out=slot(buffer, len(out)) if n == len(rest) else None)
             out.append(total)
-    return out
+    return rows(out if buffer is None else buffer, share=_MATRIX_PLANAR_SHARE)
 
 
 def _matrix_distance_columnwise_backward(grad: Tensor, inputs, saved):
@@ -249,9 +253,8 @@ def _matrix_distance_columnwise_backward(grad: Tensor, inputs, saved):
     s = grad / torch.addcmul(wedge2, cosine, cosine)
     alpha = s * cosine / zero_to_inf(wedge)
     factors = [alpha * v for v in vee] + [s * wedge]
-    g1 = rows(_times_matrix(factors, b, transpose=False), share=_MATRIX_PLANAR_SHARE).unflatten(-1, (3, 3))
-    g2 = rows(_times_matrix(factors, a, transpose=True), share=_MATRIX_PLANAR_SHARE).unflatten(-1, (3, 3))
-    return g1, g2
+    return (_times_matrix(factors, b, transpose=False).unflatten(-1, (3, 3)),
+            _times_matrix(factors, a, transpose=True).unflatten(-1, (3, 3)))
 
 
 _MATRIX_DISTANCE_COLUMNWISE = Rule(_matrix_distance_columnwise, _matrix_distance_columnwise_parts,

@@ -24,7 +24,7 @@ from ._dispatch import kernel
 from ._euler_forms import ANGLE_FORMS, COLUMNWISE, DENSE, PAIRS, angles_columnwise, angles_parts, forms_gradient
 from ._euler_small import euler_angles, lock, matrix_layout, quat_layout
 from ._math import bilinear, bilinear_terms, combine, constant, contract, is_small
-from ._planes import columns, combinations, planar, rows
+from ._planes import columns, combinations, planar, plane_buffer, rows, slot
 from ._validation import prepare, restore
 from .conventions import EULER_CONVENTIONS, EulerConvention, gimbal_eps, parse_convention
 from .matrix import quat_to_matrix_unchecked
@@ -195,8 +195,9 @@ def _euler_to_quat_columnwise_parts(angles: Tensor, convention: EulerConvention)
     # two terms per component (one product of three elementary quaternions)
     q = bilinear(pairs, cs[2], _SIGN_BILINEAR[convention.name])
     sign = torch.copysign(constant("one", 1.0, q[0]), q[0])  # w >= 0 (a where on w < 0 mispredicts)
-    q = [c * sign for c in q]
-    return rows(q), (*q, *cs[_ANGLE_TERMS[convention.name][0]])
+    buffer = plane_buffer(4, q)
+    q = [torch.mul(c, sign, out=slot(buffer, i)) for i, c in enumerate(q)]
+    return rows(q if buffer is None else buffer), (*q, *cs[_ANGLE_TERMS[convention.name][0]])
 
 
 def _euler_to_quat_columnwise(angles: Tensor, convention: EulerConvention) -> Tensor:
@@ -232,13 +233,14 @@ def _euler_to_quat_columnwise_backward(grad: Tensor, inputs, saved, convention: 
     q, (c, s) = saved[:4], saved[4:]
     left, right, terms = _ANGLE_TERMS[convention.name]
     half = columns(grad, _HALF4, "half4")  # (the chain rule's 1/2 of half angles, in the transpose)
-    g_left, g_middle, g_cross, g_right = bilinear(half, q, terms)
+    buffer = plane_buffer(3, half)
+    g_left, g_middle, g_cross, g_right = bilinear(half, q, terms, out=(slot(buffer, left), None, None, slot(buffer, right)))
     # middle: cos(a_L) <g, e_M q> + sin(a_L) <g, (e_L x e_M) q>, from the half angle's c and s
     cosine = torch.addcmul(c * c, s, s, value=-1.0)
-    g_middle = torch.addcmul(cosine * g_middle, s * c, g_cross, value=2.0)
+    g_middle = torch.addcmul(cosine * g_middle, s * c, g_cross, value=2.0, out=slot(buffer, 1))
     gradient = [g_middle] * 3
     gradient[left], gradient[right] = g_left, g_right
-    return (rows(gradient),)
+    return (rows(gradient if buffer is None else buffer),)
 
 
 _EULER_TO_QUAT_COLUMNWISE = Rule(_euler_to_quat_columnwise, _euler_to_quat_columnwise_parts,
@@ -377,7 +379,9 @@ def _quat_to_euler_planar_backward(grad: Tensor, inputs, saved, convention: Eule
     transposed, terms = _PRODUCT_GRADIENT[convention.name]
     g_forms = forms_gradient(columns(grad, share=share), saved, convention)
     g_products = combinations(g_forms, transposed, "euler_q_grad_" + convention.name, share=share)
-    return (rows(bilinear(g_products, components, terms), share=share),)
+    buffer = plane_buffer(4, g_products, share)
+    g_q = bilinear(g_products, components, terms, out=buffer)
+    return (rows(g_q if buffer is None else buffer, share=share),)
 
 
 _QUAT_TO_EULER_PLANAR = Rule(_quat_to_euler_planar, _quat_to_euler_planar_parts, _quat_to_euler_planar_backward)
@@ -402,8 +406,11 @@ _MATRIX_FORMS_TRANSPOSED = {name: tuple(zip(*DENSE[name][1])) for name in EULER_
 
 def _matrix_to_euler_columnwise_backward(grad: Tensor, inputs, saved, convention: EulerConvention, eps: float):
     share = _MATRIX_TO_EULER_PLANAR_SHARE
-    g_forms = forms_gradient(columns(grad, share=share), saved, convention)  # the forms are linear in R
-    g_R = rows(g_forms, _MATRIX_FORMS_TRANSPOSED[convention.name], "euler_R_grad_" + convention.name, share=share)
+    g = columns(grad, share=share)
+    buffer = plane_buffer(len(ANGLE_FORMS), g, share)
+    g_forms = forms_gradient(g, saved, convention, out=buffer)  # the forms are linear in R
+    g_R = rows(g_forms if buffer is None else buffer, _MATRIX_FORMS_TRANSPOSED[convention.name],
+               "euler_R_grad_" + convention.name, share=share)
     return (g_R.view(inputs[0].shape),)
 
 

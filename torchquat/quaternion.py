@@ -16,7 +16,7 @@ from . import _closed_form as closed_form
 from ._closed_form import Rule
 from ._dispatch import kernel
 from ._math import bilinear, bilinear_terms, constant, contract, is_small, sum_of_squares
-from ._planes import columns, planar, rows
+from ._planes import columns, planar, plane_buffer, rows
 from ._validation import prepare, prepare_pair, restore
 
 __all__ = [
@@ -53,22 +53,27 @@ _PRODUCT_CONJUGATE_RIGHT = bilinear_terms([[c * CONJUGATE_SIGNS[r % 4] for c in 
 _PRODUCT_CONJUGATE_LEFT = bilinear_terms([[c * CONJUGATE_SIGNS[r // 4] for c in row] for r, row in enumerate(_PRODUCT)], 4)
 
 
+def _product_columnwise_parts(p: Tensor, q: Tensor):
+    """The product column by column, and its inputs' columns (for the closed-form backward)."""
+    a, b = columns(p, share=_PLANAR_SHARE), columns(q, share=_PLANAR_SHARE)
+    return rows(bilinear(a, b, _PRODUCT_TERMS, out=plane_buffer(4, a + b, _PLANAR_SHARE)), share=_PLANAR_SHARE), (*a, *b)
+
+
 def _product_columnwise(p: Tensor, q: Tensor) -> Tensor:
-    return rows(bilinear(columns(p, share=_PLANAR_SHARE), columns(q, share=_PLANAR_SHARE), _PRODUCT_TERMS),
-                share=_PLANAR_SHARE)
+    return _product_columnwise_parts(p, q)[0]
 
 
 def _product_columnwise_backward(grad: Tensor, inputs, saved):
     # d(p q) = dp q + p dq, and right (left) multiplication by q has the transpose of right (left)
     # multiplication by conj(q): 2 products of 16 terms, against autograd's ~100 nodes.
-    p, q = (columns(x, share=_PLANAR_SHARE) for x in inputs)
+    p, q = saved[:4], saved[4:]  # (the forward's columns: no second transpose)
     g = columns(grad, share=_PLANAR_SHARE)
-    return (rows(bilinear(g, q, _PRODUCT_CONJUGATE_RIGHT), share=_PLANAR_SHARE),
-            rows(bilinear(p, g, _PRODUCT_CONJUGATE_LEFT), share=_PLANAR_SHARE))
+    return (rows(bilinear(g, q, _PRODUCT_CONJUGATE_RIGHT, out=plane_buffer(4, g, _PLANAR_SHARE)), share=_PLANAR_SHARE),
+            rows(bilinear(p, g, _PRODUCT_CONJUGATE_LEFT, out=plane_buffer(4, g, _PLANAR_SHARE)), share=_PLANAR_SHARE))
 
 
-_PRODUCT_COLUMNWISE = Rule(_product_columnwise, lambda p, q: (_product_columnwise(p, q), ()),
-                           _product_columnwise_backward)
+_PRODUCT_COLUMNWISE = Rule(_product_columnwise, _product_columnwise_parts, _product_columnwise_backward,
+                           _product_columnwise)
 
 
 @kernel
