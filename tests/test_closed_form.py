@@ -163,6 +163,26 @@ def test_columnwise_euler_angles_backward_matches_autograd(convention, is_matrix
     assert torch.allclose(g_got, g_expected, atol=1e-12, rtol=1e-12)
 
 
+def test_quat_to_matrix_planar_backward_matches_autograd(monkeypatch):
+    # large batches on contiguous columns: the products' gradient through the table, and |q|^2's
+    import torchquat._math as tqmath
+    from torchquat import matrix as M
+    monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 0)
+    monkeypatch.setattr(tqmath, "PLANAR_ROWS", 0)
+    q = _samples() * torch.logspace(-3, 3, _samples().shape[0], dtype=torch.float64).unsqueeze(-1)
+    grad = torch.randn(q.shape[0], 3, 3, dtype=q.dtype, generator=torch.Generator().manual_seed(23))
+    leaf = q.clone().requires_grad_()
+    expected = M._quat_to_matrix_planar(leaf)
+    (g_expected,) = torch.autograd.grad(expected, leaf, grad)
+    leaf = q.clone().requires_grad_()
+    got = tq.quat_to_matrix(leaf)
+    assert type(got.grad_fn).__name__ == "_ClosedFormBackward"
+    (g_got,) = torch.autograd.grad(got, leaf, grad)
+    assert torch.equal(got, expected)
+    scale = q.norm(dim=-1, keepdim=True)  # the gradient scales as 1 / |q|
+    assert torch.allclose(g_got * scale, g_expected * scale, atol=1e-13, rtol=0)
+
+
 def test_matrix_to_quat_jacobian_matches_autograd_for_every_shepperd_choice():
     from torchquat import matrix as M
     # uniform rotations, the singular sets (identity, half turns about every axis) and the cube's 24

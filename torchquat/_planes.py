@@ -142,7 +142,10 @@ broadcast batch shape, dtype and device)."""
     if (not planar(like, 1, share) or like.dim() == 0
             or (torch.is_grad_enabled() and any(c.requires_grad for c in cols))):
         return None
-    return torch.empty((k,) + torch.broadcast_shapes(*(c.shape for c in cols)), dtype=like.dtype, device=like.device)
+    shape = like.shape
+    if any(c.shape != shape for c in cols):  # (broadcast_shapes costs 10 us: only when they differ)
+        shape = torch.broadcast_shapes(*(c.shape for c in cols))
+    return torch.empty((k,) + shape, dtype=like.dtype, device=like.device)
 
 
 def slot(buffer: Optional[Tensor], i: int) -> Optional[Tensor]:

@@ -4,10 +4,10 @@ import torch
 from torch import Tensor
 
 from . import _closed_form as closed_form
-from ._closed_form import jacobian_rule
+from ._closed_form import Rule, jacobian_rule
 from ._dispatch import kernel
-from ._math import constant, contract, is_small, sum_of_squares
-from ._planes import columns, planar, rows
+from ._math import bilinear, bilinear_terms, constant, contract, is_small, sum_of_squares
+from ._planes import columns, planar, plane_buffer, rows, slot
 from ._validation import prepare, restore
 from .quaternion import standardize_sign
 
@@ -37,6 +37,48 @@ _PAIRS = tuple((i, j) for i in range(4) for j in range(i, 4))
 # 10 x 9: the products q_i q_j (i <= j) -> the 9 entries of |q|^2 R
 _HOMOGENEOUS_PAIRS = tuple(tuple(_HOMOGENEOUS[4 * i + j][c] + (_HOMOGENEOUS[4 * j + i][c] if i != j else 0.0)
                                  for c in range(9)) for i, j in _PAIRS)
+_HOMOGENEOUS_PAIRS_T = tuple(zip(*_HOMOGENEOUS_PAIRS))  # 9 x 10: R's gradient to the products'
+
+
+def _quat_to_matrix_planar_parts(q: Tensor):
+    """Many rows, eager: the 10 distinct products q_i q_j / |q|^2 as contiguous columns (written into
+    one buffer where nothing records a graph); one matmul with the table sums them into R's entries
+    and interleaves them (torchquat._planes). Returns R and what the closed-form backward needs."""
+    q = columns(q, share=_PLANAR_SHARE)
+    inverse = torch.reciprocal(sum_of_squares(q))
+    scaled = [c * inverse for c in q]
+    buffer = plane_buffer(len(_PAIRS), q, _PLANAR_SHARE)
+    products = [torch.mul(q[i], scaled[j], out=slot(buffer, p)) for p, (i, j) in enumerate(_PAIRS)]
+    R = rows(products if buffer is None else buffer, _HOMOGENEOUS_PAIRS, "homogeneous_pairs", _PLANAR_SHARE)
+    return R.unflatten(-1, (3, 3)), (*q, *scaled)
+
+
+def _quat_to_matrix_planar(q: Tensor) -> Tensor:
+    return _quat_to_matrix_planar_parts(q)[0]
+
+
+# d(q_i q_j) = q_j dq_i + q_i dq_j over the pairs: row 4 p + v, the pair's gradient times q_v, to q_u
+_PAIRS_GRADIENT = bilinear_terms([[float((u == i and v == j) + (u == j and v == i)) for u in range(4)]
+                                  for i, j in _PAIRS for v in range(4)], 4)
+
+
+def _quat_to_matrix_planar_backward(grad: Tensor, inputs, saved):
+    # R = P(q) / s, s = |q|^2, P quadratic: with A = dP^T g_P (g_P: the 10 products' gradient, from
+    # the table transposed), A(q) / s = A(q / s), and d s = 2 q.dq, the gradient is
+    # A(q / s) - q <q / s, A(q / s)> (Euler's theorem: <q, A(q)> = 2 <P, g_P>)
+    q, scaled = saved[:4], saved[4:]
+    g_pairs = columns(grad.flatten(-2), _HOMOGENEOUS_PAIRS_T, "homogeneous_pairs_T", share=_PLANAR_SHARE)
+    a = bilinear(g_pairs, scaled, _PAIRS_GRADIENT)
+    along = scaled[0] * a[0]
+    for x, y in zip(scaled[1:], a[1:]):
+        along = torch.addcmul(along, x, y)
+    buffer = plane_buffer(4, q, _PLANAR_SHARE)
+    g_q = [torch.addcmul(y, x, along, value=-1.0, out=slot(buffer, i)) for i, (x, y) in enumerate(zip(q, a))]
+    return (rows(g_q if buffer is None else buffer, share=_PLANAR_SHARE),)
+
+
+_QUAT_TO_MATRIX_PLANAR = Rule(_quat_to_matrix_planar, _quat_to_matrix_planar_parts, _quat_to_matrix_planar_backward,
+                              _quat_to_matrix_planar)
 
 
 @kernel
@@ -48,13 +90,7 @@ def quat_to_matrix_unchecked(q: Tensor) -> Tensor:
         h = contract((q.unsqueeze(-1) * q.unsqueeze(-2)).flatten(-2), "homogeneous", _HOMOGENEOUS)
         return (h[..., :9] / h[..., 9:]).unflatten(-1, (3, 3))
     if planar(q, 4, _PLANAR_SHARE):
-        # Many, eager: the 10 distinct products q_i q_j / |q|^2 as contiguous columns; one matmul
-        # with the table sums them into R's entries and interleaves them (torchquat._planes).
-        q = columns(q, share=_PLANAR_SHARE)
-        inverse = torch.reciprocal(sum_of_squares(q))
-        scaled = [c * inverse for c in q]
-        return rows([q[i] * scaled[j] for i, j in _PAIRS], _HOMOGENEOUS_PAIRS, "homogeneous_pairs",
-                    _PLANAR_SHARE).unflatten(-1, (3, 3))
+        return closed_form.apply(_QUAT_TO_MATRIX_PLANAR, q)
     # Many (compiled: one fused loop): the outer product's (N, 16) buffer costs more than it saves.
     w, x, y, z = q.unbind(-1)
     s = 2.0 / (w * w + x * x + y * y + z * z)

@@ -9,7 +9,7 @@ from . import _closed_form as closed_form
 from ._closed_form import Rule
 from ._dispatch import kernel
 from ._math import constant, is_small, matmul3, sum_of_squares
-from ._planes import columns, rows
+from ._planes import columns, plane_buffer, rows, slot
 from ._validation import prepare, restore
 from .errors import ShapeError
 
@@ -58,13 +58,16 @@ _ROT6D = Rule(_rot6d_small, _rot6d_parts, _rot6d_backward)
 @kernel
 def rot6d_to_matrix_unchecked(x: Tensor) -> Tensor:
     if not is_small(x, 6):
-        return _rot6d_columnwise(x)
+        if torch.compiler.is_compiling():
+            return _rot6d_columnwise(x)
+        return closed_form.apply(_ROT6D_COLUMNWISE, x)
     return closed_form.apply(_ROT6D, x)
 
 
-def _rot6d_columnwise(x: Tensor) -> Tensor:
+def _rot6d_columnwise_parts(x: Tensor):
     """The same, column by column: fewer passes for large batches, and one fused vectorised loop
-    under ``torch.compile``."""
+    under ``torch.compile``. Returns the matrix and what the closed-form backward needs; where
+    nothing records a graph R's columns are written into one buffer (no stack before the transpose)."""
     a = columns(x, share=_PLANAR_SHARE)
     a1, a2 = a[:3], a[3:]
     r2 = sum_of_squares(a1)
@@ -78,10 +81,48 @@ def _rot6d_columnwise(x: Tensor) -> Tensor:
     valid = n2 > noise
     inv2 = torch.where(valid, torch.rsqrt(torch.where(valid, n2, 1.0)), torch.nan)
     inv1 = torch.where(valid, torch.rsqrt(r2), torch.nan)
-    b1 = [c * inv1 for c in a1]
-    b2 = [c * inv2 for c in b2]
-    b3 = [torch.addcmul(b1[i] * b2[j], b1[j], b2[i], value=-1.0) for i, j in ((1, 2), (2, 0), (0, 1))]
-    return rows([c for row in zip(b1, b2, b3) for c in row], share=_PLANAR_SHARE).unflatten(-1, (3, 3))
+    buffer = plane_buffer(9, a, _PLANAR_SHARE)  # R row-major: b_k's entry i at 3 i + k
+    b1 = [torch.mul(c, inv1, out=slot(buffer, 3 * i)) for i, c in enumerate(a1)]
+    b2 = [torch.mul(c, inv2, out=slot(buffer, 3 * i + 1)) for i, c in enumerate(b2)]
+    b3 = [torch.addcmul(b1[i] * b2[j], b1[j], b2[i], value=-1.0, out=slot(buffer, 3 * k + 2))
+          for k, (i, j) in enumerate(((1, 2), (2, 0), (0, 1)))]
+    R = rows([c for row in zip(b1, b2, b3) for c in row] if buffer is None else buffer, share=_PLANAR_SHARE)
+    return R.unflatten(-1, (3, 3)), (*b1, *b2, *b3, inv1, inv2, dot)
+
+
+def _rot6d_columnwise(x: Tensor) -> Tensor:
+    return _rot6d_columnwise_parts(x)[0]
+
+
+_CROSS = ((1, 2), (2, 0), (0, 1))  # (u x v)_k = u_i v_j - u_j v_i
+
+
+def _rot6d_columnwise_backward(grad: Tensor, inputs, saved):
+    # _rot6d_backward column by column: w = sum_k b_k x G_k, t = (b1 . w) / n; a2's gradient is
+    # t b3 and a1's is (w x b1 - d t b3) / r1, with d = <a1, a2> / r1, 1 / r1 and 1 / n saved
+    b, (inv1, inv2, dot) = saved[:9], saved[9:]
+    b1, b2, b3 = b[:3], b[3:6], b[6:]
+    G = columns(grad.flatten(-2), share=_PLANAR_SHARE)  # G[3 i + k]: column k's entry i
+    w = []
+    for i, j in _CROSS:  # sum over the columns k of (b_k x G_k)_(i, j component)
+        total = None
+        for k, column in enumerate((b1, b2, b3)):
+            total = column[i] * G[3 * j + k] if total is None else torch.addcmul(total, column[i], G[3 * j + k])
+            total = torch.addcmul(total, column[j], G[3 * i + k], value=-1.0)
+        w.append(total)
+    t = b1[0] * w[0]
+    for u, v in zip(b1[1:], w[1:]):
+        t = torch.addcmul(t, u, v)
+    t = t * inv2
+    e = dot * t * (inv1 * inv1)  # d t / r1
+    buffer = plane_buffer(6, b1, _PLANAR_SHARE)
+    g1 = [torch.addcmul(torch.addcmul(w[i] * b1[j], w[j], b1[i], value=-1.0) * inv1, e, b3[k], value=-1.0,
+                        out=slot(buffer, k)) for k, (i, j) in enumerate(_CROSS)]
+    g2 = [torch.mul(c, t, out=slot(buffer, 3 + k)) for k, c in enumerate(b3)]
+    return (rows(g1 + g2 if buffer is None else buffer, share=_PLANAR_SHARE),)
+
+
+_ROT6D_COLUMNWISE = Rule(_rot6d_columnwise, _rot6d_columnwise_parts, _rot6d_columnwise_backward, _rot6d_columnwise)
 
 
 def rot6d_to_matrix(x: Tensor) -> Tensor:
