@@ -162,14 +162,16 @@ def _dense_tables(name: str):
 DENSE = {name: _dense_tables(name) for name in EULER_CONVENTIONS}
 
 
-def angles_parts(forms, conv: EulerConvention, eps: float, abcd2, nan_where: Optional[Tensor] = None):
+def angles_parts(forms, conv: EulerConvention, eps: float, abcd2, nan_where: Optional[Tensor] = None,
+                 out: Optional[Tensor] = None):
     """The same angles as ``torchquat._euler_small``, written column by column with the tables'
     numbers as literals: for large batches (a handful of passes over 1-D columns instead of
     strided pair tensors) and for ``torch.compile``, which fuses it into one vectorised loop.
 
     ``forms``: the :data:`ANGLE_FORMS` (their scale is free), ``abcd2``: ``|abcd|^2`` on the same
-    scale (a tensor, or a number). Rows where ``nan_where`` holds come out as NaN. Returns the
-    three angles and what :func:`forms_gradient` needs."""
+    scale (a tensor, or a number). Rows where ``nan_where`` holds come out as NaN. ``out``: an
+    optional ``torchquat._planes.plane_buffer`` of 3 rows for the angles. Returns the three angles
+    and what :func:`forms_gradient` needs."""
     y1, x1, y_zero, x_zero, y_pi, x_pi, z = forms
     two_h = safe_sqrt(y1 * y1 + x1 * x1)
     near_zero = z >= 0 if conv.symmetric else z <= 0  # |ab| >= |cd|: the small path's test
@@ -191,19 +193,24 @@ def angles_parts(forms, conv: EulerConvention, eps: float, abcd2, nan_where: Opt
         step = weight * (-2.0 * tb) + tb
     locked = two_h <= abcd2 * math.sin(eps)  # sin(middle) <= sin(eps), as the small path
     y1_used, x1_used = torch.where(locked, 0.0, y1), torch.where(locked, 1.0, x1)  # t1 = 0 at lock
-    t1 = torch.atan2(y1_used, x1_used)
-    middle = torch.atan2(two_h, z) if conv.symmetric else torch.atan2(z, two_h)
+    # (out: the angles' last passes write into a plane buffer; with nan_where those are its wheres)
+    final = (lambda i: None) if out is None or nan_where is not None else out.__getitem__
+    t1 = torch.atan2(y1_used, x1_used, out=final(2) if conv.intrinsic else None)
+    middle = torch.atan2(two_h, z, out=final(1)) if conv.symmetric else torch.atan2(z, two_h, out=final(1))
     y_double, x_double = pick(y_zero, y_pi), pick(x_zero, x_pi)
     double = torch.atan2(y_double, x_double)
     t3 = torch.addcmul(double, t1, step)  # D - tb t1 near 0, D + tb t1 near pi
-    t3 = t3 - torch.round(t3 * (0.5 / math.pi)) * (2.0 * math.pi)  # into [-pi, pi], branch-free
+    t3 = torch.sub(t3, torch.round(t3 * (0.5 / math.pi)) * (2.0 * math.pi),  # into [-pi, pi], branch-free
+                   out=final(0) if conv.intrinsic else None)
     if conv.intrinsic:
         angles = (t3, middle, t1)
     else:  # SciPy's rule moves the rotation into the first angle at lock: there t3 = D, and the
         # lock pair (2ab, a^2 - b^2) or (-2cd, c^2 - d^2) is the double angle's up to sign: -step D
-        angles = (torch.where(locked, -step * t3, t1), middle, torch.where(locked, 0.0, t3))
+        zero = constant("zero", 0.0, t3)
+        angles = (torch.where(locked, -step * t3, t1, out=final(0)), middle, torch.where(locked, zero, t3, out=final(2)))
     if nan_where is not None:
-        angles = [torch.where(nan_where, torch.nan, a) for a in angles]
+        nan = constant("nan", math.nan, t3)
+        angles = [torch.where(nan_where, nan, a, out=None if out is None else out[i]) for i, a in enumerate(angles)]
     return angles, (y1, x1, y1_used, x1_used, y_double, x_double, two_h, z, locked, weight, step)
 
 

@@ -349,8 +349,9 @@ def _quat_to_euler_planar_parts(q: Tensor, convention: EulerConvention, eps: flo
     components = columns(q, share=share)
     products = [components[u] * components[v] for u, v in PAIRS]
     *forms, abcd2 = combinations(products, DENSE[convention.name][0], "euler_q_" + convention.name, share=share)
-    angles, saved = angles_parts(forms, convention, eps, abcd2, nan_where=abcd2 == 0)
-    return rows(angles, share=share), (*components, *saved)
+    buffer = plane_buffer(3, forms, share)
+    angles, saved = angles_parts(forms, convention, eps, abcd2, nan_where=abcd2 == 0, out=buffer)
+    return rows(angles if buffer is None else buffer, share=share), (*components, *saved)
 
 
 def _quat_to_euler_planar(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
@@ -392,8 +393,9 @@ def _matrix_to_euler_columnwise_parts(R: Tensor, convention: EulerConvention, ep
     what the closed-form backward needs."""
     _, table, offset, abcd2 = DENSE[convention.name]
     forms = columns(R.flatten(-2), table, "euler_R_" + convention.name, offset, share=_MATRIX_TO_EULER_PLANAR_SHARE)
-    angles, saved = angles_parts(forms, convention, eps, abcd2)
-    return rows(angles, share=_MATRIX_TO_EULER_PLANAR_SHARE), saved
+    buffer = plane_buffer(3, forms, _MATRIX_TO_EULER_PLANAR_SHARE)
+    angles, saved = angles_parts(forms, convention, eps, abcd2, out=buffer)
+    return rows(angles if buffer is None else buffer, share=_MATRIX_TO_EULER_PLANAR_SHARE), saved
 
 
 def _matrix_to_euler_columnwise(R: Tensor, convention: EulerConvention, eps: float) -> Tensor:

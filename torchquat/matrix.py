@@ -217,7 +217,9 @@ def _shepperd_columnwise(R: Tensor) -> Tensor:
                     torch.sign(w), alpha=8.0)  # standardize_sign's key: w >= 0, then the first non-zero
     scale = torch.rsqrt(sum_of_squares(row))
     scale = scale * (torch.where(key < 0, -1.0, 1.0) if compiling else torch.copysign(constant("one", 1.0, key), key))
-    return rows((w * scale, x * scale, y * scale, z * scale), share=_SHEPPERD_PLANAR_SHARE)
+    buffer = plane_buffer(4, row, _SHEPPERD_PLANAR_SHARE)  # (forward only: autograd refuses out=)
+    q = [torch.mul(c, scale, out=slot(buffer, i)) for i, c in enumerate(row)]
+    return rows(q if buffer is None else buffer, share=_SHEPPERD_PLANAR_SHARE)
 
 
 def matrix_to_quat(R: Tensor) -> Tensor:

@@ -16,7 +16,7 @@ from . import _closed_form as closed_form
 from ._closed_form import Rule
 from ._dispatch import kernel
 from ._math import bilinear, bilinear_terms, constant, contract, is_small, sum_of_squares
-from ._planes import columns, planar, plane_buffer, rows
+from ._planes import columns, planar, plane_buffer, rows, slot
 from ._validation import prepare, prepare_pair, restore
 
 __all__ = [
@@ -226,10 +226,11 @@ def rotate_unchecked(q: Tensor, v: Tensor) -> Tensor:
         tx = torch.addcmul(y * c, z, b, value=-1.0) * scale
         ty = torch.addcmul(z * a, x, c, value=-1.0) * scale
         tz = torch.addcmul(x * b, y, a, value=-1.0) * scale
-        return rows((torch.addcmul(torch.addcmul(torch.addcmul(a, w, tx), y, tz), z, ty, value=-1.0),
-                     torch.addcmul(torch.addcmul(torch.addcmul(b, w, ty), z, tx), x, tz, value=-1.0),
-                     torch.addcmul(torch.addcmul(torch.addcmul(c, w, tz), x, ty), y, tx, value=-1.0)),
-                    share=_PLANAR_SHARE)
+        buffer = plane_buffer(3, (*q, a), _PLANAR_SHARE)  # (forward only: autograd refuses out=)
+        rotated = [torch.addcmul(torch.addcmul(torch.addcmul(a, w, tx), y, tz), z, ty, value=-1.0, out=slot(buffer, 0)),
+                   torch.addcmul(torch.addcmul(torch.addcmul(b, w, ty), z, tx), x, tz, value=-1.0, out=slot(buffer, 1)),
+                   torch.addcmul(torch.addcmul(torch.addcmul(c, w, tz), x, ty), y, tx, value=-1.0, out=slot(buffer, 2))]
+        return rows(rotated if buffer is None else buffer, share=_PLANAR_SHARE)
     w, u = q.narrow(-1, 0, 1), q.narrow(-1, 1, 3)
     u, v = torch.broadcast_tensors(u, v)  # linalg.cross wants equal ndim; these are views
     t = torch.linalg.cross(u, v, dim=-1) * (constant("two", 2.0, q) / (q * q).sum(-1, keepdim=True))
