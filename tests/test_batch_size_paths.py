@@ -87,6 +87,34 @@ def test_planes_written_in_place_give_the_same_numbers(name, monkeypatch):
         torch.testing.assert_close(a, b, rtol=0, atol=0, equal_nan=True)
 
 
+@pytest.mark.parametrize("name", PATH_DEPENDENT)
+def test_forward_on_contiguous_columns_writes_its_output_planes_without_a_stack(name, monkeypatch):
+    # the point of plane_buffer: the last passes write the planes that rows() transposes, so no
+    # torch.stack (a pass over every output column) is dispatched when nothing records a graph
+    from torch.utils._python_dispatch import TorchDispatchMode
+
+    class Record(TorchDispatchMode):
+        def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+            ops.append(func.overloadpacket.__name__)
+            return func(*args, **(kwargs or {}))
+
+    fn, generic, _ = ALL[name]
+    monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 0)
+    monkeypatch.setattr(tqmath, "PLANAR_ROWS", 0)
+    inputs = generic()
+    ops = []
+    with torch.no_grad(), Record():
+        fn(*inputs)
+    assert "mm" in ops and "stack" not in ops, ops
+    leaves = tuple(x.clone().requires_grad_() for x in inputs)
+    ops = []
+    with Record():
+        out = fn(*leaves)
+        if type(out.grad_fn).__name__ == "_ClosedFormBackward":  # its forward and backward write planes too
+            torch.autograd.grad(out, leaves, torch.ones_like(out))
+            assert "stack" not in ops, ops
+
+
 def test_plane_buffer_only_where_nothing_records(monkeypatch):
     monkeypatch.setattr(tqmath, "PLANAR_ROWS", 0)
     a, b = torch.randn(5, 1), torch.randn(1, 3)

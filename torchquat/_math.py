@@ -55,6 +55,10 @@ strided columns still sit in cache and the transposing matmuls and their backwar
 more than they save."""
 
 
+HALF_IDENTITY = {k: tuple(tuple(0.5 * float(i == j) for j in range(k)) for i in range(k)) for k in (3, 4)}
+"""``I / 2`` tables: half angles (and the chain rule's 1/2) folded into a transposing matmul."""
+
+
 def matmul_rounds(x: Tensor) -> bool:
     """Whether a float32 matmul on ``x``'s device may round its inputs: on CUDA when the user
     allows TF32 (``torch.backends.cuda.matmul.allow_tf32``, or a float32 matmul precision other
@@ -136,8 +140,8 @@ def bilinear_terms(table, n_b: int):
 def bilinear(a, b, terms, out=None):
     """``sum_ij T[i * len(b) + j] a_i b_j`` for each column of a table given as its
     :func:`bilinear_terms`, from the columns ``a`` and ``b``: one product and one ``addcmul`` per
-    term, each a single pass. ``out``: optional planes (``torchquat._planes.plane_buffer``), or
-    ``None`` entries, that each column's last pass writes into."""
+    term, each a single pass. ``out``: optional planes (a ``torchquat._planes.plane_buffer``,
+    returned filled; or a sequence of planes and ``None``) that each column's last pass writes into."""
     results = []
     for c, ((i, j, k), *rest) in enumerate(terms):
         target = None if out is None else out[c]
@@ -149,7 +153,7 @@ def bilinear(a, b, terms, out=None):
             for n, (i, j, k) in enumerate(rest, 1):
                 total = torch.addcmul(total, a[i], b[j], value=k, out=target if n == len(rest) else None)
         results.append(total)
-    return results
+    return out if isinstance(out, Tensor) else results  # (a filled buffer goes to rows() as it is)
 
 
 def contract(x: Tensor, name: str, values) -> Tensor:

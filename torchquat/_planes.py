@@ -106,7 +106,7 @@ def combinations(cols: Sequence[Tensor], table, name: str, offset=None, share: f
     eager CPU path one matmul of the stacked columns (contiguous results), else one pass per term.
 
     Args:
-        cols: ``k`` tensors of one batch shape (they broadcast).
+        cols: ``k`` tensors of one batch shape (they broadcast), or a filled :func:`plane_buffer`.
         table: nested sequence of numbers, ``k`` rows of ``m``.
         name: the table's key in the constants' cache.
         offset: optional ``m`` numbers added to the results.
@@ -122,9 +122,12 @@ def combinations(cols: Sequence[Tensor], table, name: str, offset=None, share: f
         >>> combinations([torch.tensor([1., 2.]), torch.tensor([3., 4.])], ((1., 1.), (0., -1.)), "demo2")
         (tensor([1., 2.]), tensor([-2., -2.]))
     """
-    if torch.compiler.is_compiling() or not planar(max(cols, key=Tensor.numel), 1, share):
+    if isinstance(cols, Tensor):  # a plane_buffer, filled
+        planes = cols
+    elif torch.compiler.is_compiling() or not planar(max(cols, key=Tensor.numel), 1, share):
         return _combined(cols, table, name, offset)
-    planes = torch.stack(torch.broadcast_tensors(*cols), 0)
+    else:
+        planes = torch.stack(torch.broadcast_tensors(*cols), 0)
     out = torch.mm(constant(name + "^T", tuple(zip(*table)), planes), planes.view(len(cols), -1))
     return _with_offset(out.view((out.shape[0],) + planes.shape[1:]).unbind(0), offset)
 

@@ -11,7 +11,7 @@ from torch import Tensor
 from . import _closed_form as closed_form
 from ._closed_form import Rule, jacobian_rule
 from ._dispatch import kernel
-from ._math import constant, is_small, small_angle_threshold, sum_of_squares
+from ._math import HALF_IDENTITY, constant, is_small, small_angle_threshold, sum_of_squares
 from ._planes import columns, plane_buffer, rows, slot
 from ._validation import prepare, restore
 from .matrix import matrix_to_quat_unchecked
@@ -181,15 +181,12 @@ def _axis_angle_to_quat_columnwise(v: Tensor) -> Tensor:
     return rows((cos_half * sign, x * s, y * s, z * s))
 
 
-_HALF3 = ((0.5, 0.0, 0.0), (0.0, 0.5, 0.0), (0.0, 0.0, 0.5))
-
-
 def _axis_angle_to_quat_columnwise_parts(v: Tensor):
     """The same quaternion for the closed-form backward, which takes its own series: no autograd
     runs through these values, so they need no substitutes, and ``sin(x) / x`` of the half angle
     is exact to rounding down to ``x^2 < eps^2``, where it is 1 (the next term, ``x^2 / 6``, is
     below rounding). Returns the quaternion and what the backward needs."""
-    h = columns(v, _HALF3, "half3")  # v / 2: its norm is the half angle
+    h = columns(v, HALF_IDENTITY[3], "half3")  # v / 2: its norm is the half angle
     x2 = sum_of_squares(h)
     x = torch.sqrt(x2)
     cos_half = torch.cos(x)
@@ -206,7 +203,7 @@ def _axis_angle_to_quat_columnwise_backward(grad: Tensor, inputs, saved):
     # d q_u = r dh + k h (h.dh) with k = r'(x) / x = (cos x - r) / x^2 (series -1/3 + x^2 / 30 below
     # x^2 = sqrt(eps): its cancellation, eps / x^2 relative, multiplies h h^T ~ x^2: eps absolute)
     *h, x2, cos_half, sinc, sign = saved
-    g_w, *g_u = columns(grad, _HALF4, "half4")  # (dh = dv / 2, in the transpose)
+    g_w, *g_u = columns(grad, HALF_IDENTITY[4], "half4")  # (dh = dv / 2, in the transpose)
     small = x2 < torch.finfo(x2.dtype).eps ** 0.5
     k = torch.where(small, x2 * (1.0 / 30.0) - 1.0 / 3.0, (cos_half - sinc) / torch.where(small, 1.0, x2))
     dot = g_u[0] * h[0]
@@ -219,7 +216,6 @@ def _axis_angle_to_quat_columnwise_backward(grad: Tensor, inputs, saved):
     return (rows(g_v if buffer is None else buffer),)
 
 
-_HALF4 = tuple(tuple(0.5 * float(i == j) for j in range(4)) for i in range(4))
 _AXIS_ANGLE_TO_QUAT_COLUMNWISE = Rule(_axis_angle_to_quat_columnwise, _axis_angle_to_quat_columnwise_parts,
                                       _axis_angle_to_quat_columnwise_backward,
                                       lambda v: _axis_angle_to_quat_columnwise_parts(v)[0])
@@ -252,11 +248,14 @@ def _quat_to_axis_angle_columnwise_parts(q: Tensor):
     return rows(v if buffer is None else buffer, _DOUBLE, "double3"), (w0, *u, n2, small, m)
 
 
+# m in the column code is half the rotation vector's factor: rows() doubles the output and the
+# gradient (whose first row, g_w0 = -(u.g) 2 / (n^2 + w^2), it also negates)
 _DOUBLE = ((2.0, 0.0, 0.0), (0.0, 2.0, 0.0), (0.0, 0.0, 2.0))
-# the gradient's rows: g_w0 = -(u.g) 2 / (n^2 + w^2) (rows() negates it), g_u = m g + k (u.g) u
-# (m here is half the Jacobian's: rows() doubles all four)
+_NEGATE_FIRST_DOUBLE = ((-2.0, 0.0, 0.0, 0.0), (0.0, 2.0, 0.0, 0.0), (0.0, 0.0, 2.0, 0.0), (0.0, 0.0, 0.0, 2.0))
+
+
 def _quat_to_axis_angle_columnwise_backward(grad: Tensor, inputs, saved):
-    # the Jacobian of _quat_to_axis_angle_with_jacobian, contracted column by column, halved
+    # the Jacobian of _quat_to_axis_angle_with_jacobian (g_u = m g + k (u.g) u), column by column, halved
     w0, *rest = saved
     u, (n2, small, m) = rest[:3], rest[3:]
     g = columns(grad)
@@ -272,7 +271,6 @@ def _quat_to_axis_angle_columnwise_backward(grad: Tensor, inputs, saved):
     return (rows(g_q if buffer is None else buffer, _NEGATE_FIRST_DOUBLE, "negate_first_double"),)
 
 
-_NEGATE_FIRST_DOUBLE = ((-2.0, 0.0, 0.0, 0.0), (0.0, 2.0, 0.0, 0.0), (0.0, 0.0, 2.0, 0.0), (0.0, 0.0, 0.0, 2.0))
 _QUAT_TO_AXIS_ANGLE_COLUMNWISE = Rule(_quat_to_axis_angle_columnwise, _quat_to_axis_angle_columnwise_parts,
                                       _quat_to_axis_angle_columnwise_backward,
                                       lambda q: _quat_to_axis_angle_columnwise_parts(q)[0])

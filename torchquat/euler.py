@@ -23,7 +23,7 @@ from ._closed_form import Rule, jacobian_rule
 from ._dispatch import kernel
 from ._euler_forms import ANGLE_FORMS, COLUMNWISE, DENSE, PAIRS, angles_columnwise, angles_parts, forms_gradient
 from ._euler_small import euler_angles, lock, matrix_layout, quat_layout
-from ._math import bilinear, bilinear_terms, combine, constant, contract, is_small
+from ._math import HALF_IDENTITY, bilinear, bilinear_terms, combine, constant, contract, is_small
 from ._planes import columns, combinations, planar, plane_buffer, rows, slot
 from ._validation import prepare, restore
 from .conventions import EULER_CONVENTIONS, EulerConvention, gimbal_eps, parse_convention
@@ -88,8 +88,6 @@ _SIGN_TABLES: Dict[str, Tuple[Tuple[int, ...], ...]] = {
     name: _sign_table(conv) for name, conv in EULER_CONVENTIONS.items()
 }
 _MATRIX_TABLES = {name: _matrix_table(conv) for name, conv in EULER_CONVENTIONS.items()}
-_HALF = ((0.5, 0.0, 0.0), (0.0, 0.5, 0.0), (0.0, 0.0, 0.5))
-_HALF4 = tuple(tuple(0.5 * v for v in row) for row in _UNIT)
 # Contiguous columns (measured crossovers, with the closed-form backward): quat -> Euler from 65,536
 # rows (its forward is 1.06-1.13x slower at 8-32k); matrix -> Euler from the large path's first
 # rows (0.91-0.95 of the strided code's time at 1,100-8,192 rows, forward and forward+backward)
@@ -189,7 +187,7 @@ _EULER_TO_QUAT = jacobian_rule(_euler_to_quat_small, _euler_to_quat_with_jacobia
 def _euler_to_quat_columnwise_parts(angles: Tensor, convention: EulerConvention):
     """Column by column (fewer passes; under compile one fused loop): the quaternion, and what the
     closed-form backward needs (its columns, and the left factor's half-angle cosine and sine)."""
-    cs = [(torch.cos(h), torch.sin(h)) for h in columns(angles, _HALF, "half3")]
+    cs = [(torch.cos(h), torch.sin(h)) for h in columns(angles, HALF_IDENTITY[3], "half3")]
     pairs = [u * v for u in cs[0] for v in cs[1]]
     # the table's row 4 m1 + 2 m2 + m3 is pair 2 m1 + m2 times factor m3 of the third angle:
     # two terms per component (one product of three elementary quaternions)
@@ -232,7 +230,7 @@ _ANGLE_TERMS = {name: _angle_terms(conv) for name, conv in EULER_CONVENTIONS.ite
 def _euler_to_quat_columnwise_backward(grad: Tensor, inputs, saved, convention: EulerConvention):
     q, (c, s) = saved[:4], saved[4:]
     left, right, terms = _ANGLE_TERMS[convention.name]
-    half = columns(grad, _HALF4, "half4")  # (the chain rule's 1/2 of half angles, in the transpose)
+    half = columns(grad, HALF_IDENTITY[4], "half4")  # (the chain rule's 1/2 of half angles, in the transpose)
     buffer = plane_buffer(3, half)
     g_left, g_middle, g_cross, g_right = bilinear(half, q, terms, out=(slot(buffer, left), None, None, slot(buffer, right)))
     # middle: cos(a_L) <g, e_M q> + sin(a_L) <g, (e_L x e_M) q>, from the half angle's c and s
@@ -347,8 +345,10 @@ def _quat_to_euler_planar_parts(q: Tensor, convention: EulerConvention, eps: flo
     closed-form backward needs."""
     share = _QUAT_TO_EULER_PLANAR_SHARE
     components = columns(q, share=share)
-    products = [components[u] * components[v] for u, v in PAIRS]
-    *forms, abcd2 = combinations(products, DENSE[convention.name][0], "euler_q_" + convention.name, share=share)
+    buffer = plane_buffer(len(PAIRS), components, share)
+    products = [torch.mul(components[u], components[v], out=slot(buffer, p)) for p, (u, v) in enumerate(PAIRS)]
+    *forms, abcd2 = combinations(products if buffer is None else buffer, DENSE[convention.name][0],
+                                 "euler_q_" + convention.name, share=share)
     buffer = plane_buffer(3, forms, share)
     angles, saved = angles_parts(forms, convention, eps, abcd2, nan_where=abcd2 == 0, out=buffer)
     return rows(angles if buffer is None else buffer, share=share), (*components, *saved)
@@ -378,11 +378,11 @@ def _quat_to_euler_planar_backward(grad: Tensor, inputs, saved, convention: Eule
     share = _QUAT_TO_EULER_PLANAR_SHARE
     components, saved = saved[:4], saved[4:]
     transposed, terms = _PRODUCT_GRADIENT[convention.name]
-    g_forms = forms_gradient(columns(grad, share=share), saved, convention)
-    g_products = combinations(g_forms, transposed, "euler_q_grad_" + convention.name, share=share)
-    buffer = plane_buffer(4, g_products, share)
-    g_q = bilinear(g_products, components, terms, out=buffer)
-    return (rows(g_q if buffer is None else buffer, share=share),)
+    g = columns(grad, share=share)
+    buffer = plane_buffer(len(ANGLE_FORMS), g, share)
+    g_forms = forms_gradient(g, saved, convention, out=buffer)
+    g_products = combinations(g_forms if buffer is None else buffer, transposed, "euler_q_grad_" + convention.name, share=share)
+    return (rows(bilinear(g_products, components, terms, out=plane_buffer(4, g_products, share)), share=share),)
 
 
 _QUAT_TO_EULER_PLANAR = Rule(_quat_to_euler_planar, _quat_to_euler_planar_parts, _quat_to_euler_planar_backward)
