@@ -64,10 +64,12 @@ def rot6d_to_matrix_unchecked(x: Tensor) -> Tensor:
     return closed_form.apply(_ROT6D, x)
 
 
-def _rot6d_columnwise_parts(x: Tensor):
+def _rot6d_columnwise_parts(x: Tensor, for_autograd: bool = False):
     """The same, column by column: fewer passes for large batches, and one fused vectorised loop
     under ``torch.compile``. Returns the matrix and what the closed-form backward needs; where
-    nothing records a graph R's columns are written into one buffer (no stack before the transpose)."""
+    nothing records a graph R's columns are written into one buffer (no stack before the transpose).
+    ``for_autograd``: keep ``rsqrt`` away from 0 in the rows ``where`` drops (its gradient there
+    would be NaN times 0)."""
     a = columns(x, share=_PLANAR_SHARE)
     a1, a2 = a[:3], a[3:]
     r2 = sum_of_squares(a1)
@@ -77,9 +79,10 @@ def _rot6d_columnwise_parts(x: Tensor):
     coefficient = dot / r2  # a2 less its part along a1, before normalising either (fewer passes)
     b2 = [torch.addcmul(v, u, coefficient, value=-1.0) for u, v in zip(a1, a2)]
     n2 = sum_of_squares(b2)
-    noise = (16.0 * torch.finfo(x.dtype).eps) ** 2 * sum_of_squares(a2)
+    # |a2|^2 = n2 + <a1, a2>^2 / |a1|^2 (two non-negative terms: no cancellation)
+    noise = (16.0 * torch.finfo(x.dtype).eps) ** 2 * torch.addcmul(n2, dot, coefficient)
     valid = n2 > noise
-    inv2 = torch.where(valid, torch.rsqrt(torch.where(valid, n2, 1.0)), torch.nan)
+    inv2 = torch.where(valid, torch.rsqrt(torch.where(valid, n2, 1.0) if for_autograd else n2), torch.nan)
     inv1 = torch.where(valid, torch.rsqrt(r2), torch.nan)
     buffer = plane_buffer(9, a, _PLANAR_SHARE)  # R row-major: b_k's entry i at 3 i + k
     b1 = [torch.mul(c, inv1, out=slot(buffer, 3 * i)) for i, c in enumerate(a1)]
@@ -91,7 +94,7 @@ def _rot6d_columnwise_parts(x: Tensor):
 
 
 def _rot6d_columnwise(x: Tensor) -> Tensor:
-    return _rot6d_columnwise_parts(x)[0]
+    return _rot6d_columnwise_parts(x, for_autograd=True)[0]
 
 
 _CROSS = ((1, 2), (2, 0), (0, 1))  # (u x v)_k = u_i v_j - u_j v_i
@@ -122,7 +125,8 @@ def _rot6d_columnwise_backward(grad: Tensor, inputs, saved):
     return (rows(g1 + g2 if buffer is None else buffer, share=_PLANAR_SHARE),)
 
 
-_ROT6D_COLUMNWISE = Rule(_rot6d_columnwise, _rot6d_columnwise_parts, _rot6d_columnwise_backward, _rot6d_columnwise)
+_ROT6D_COLUMNWISE = Rule(_rot6d_columnwise, _rot6d_columnwise_parts, _rot6d_columnwise_backward,
+                         lambda x: _rot6d_columnwise_parts(x)[0])
 
 
 def rot6d_to_matrix(x: Tensor) -> Tensor:
