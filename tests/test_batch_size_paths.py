@@ -127,6 +127,30 @@ def test_plane_buffer_only_where_nothing_records(monkeypatch):
     assert _planes.plane_buffer(4, [a, b]) is None  # strided columns: rows() stacks them
 
 
+def test_outer_products_from_256_rows_are_exact():
+    # from 256 rows the small-batch kernels spread each factor by a 0/1 matmul before one product
+    x = torch.cat([singular_quats(), torch.tensor([[1e-300, -1e300, 1.0 + 2**-52, 5e-324]], dtype=torch.float64),
+                   torch.randn(300, 4, dtype=torch.float64, generator=torch.Generator().manual_seed(4))])
+    y = x.flip(0)
+    assert x.shape[0] >= 256
+    assert torch.equal(tqmath.outer_product(x, y), (x.unsqueeze(-1) * y.unsqueeze(-2)).flatten(-2))
+
+
+@pytest.mark.parametrize("fn", [tq.quat_to_matrix, lambda q: tq.quat_multiply(q, q.flip(0)),
+                                lambda q: tq.quat_to_euler(q, "xyz")], ids=["quat_to_matrix", "quat_multiply", "quat_to_euler"])
+def test_small_batches_spread_by_matmul_match_the_broadcast(fn, monkeypatch):
+    q = torch.cat([singular_quats(), tq.random_quat(400, generator=torch.Generator().manual_seed(5), dtype=torch.float64)])
+    results = []
+    for rows in (tqmath.OUTER_PRODUCT_MATMUL_ROWS, 10**9):  # the 0/1 matmuls, then the broadcast product
+        monkeypatch.setattr(tqmath, "OUTER_PRODUCT_MATMUL_ROWS", rows)
+        leaf = q.clone().requires_grad_()
+        out = fn(leaf)
+        results.append((out, torch.autograd.grad(out.sum(), leaf)[0]))
+    (spread, g_spread), (broadcast, g_broadcast) = results
+    assert torch.equal(spread, broadcast)  # the same products, summed in the same table contraction
+    assert torch.allclose(g_spread, g_broadcast, atol=1e-14, rtol=0) and torch.isfinite(g_spread).all()
+
+
 def test_a_batch_above_the_threshold_matches_one_below():
     q = torch.cat([singular_quats(), tq.random_quat(5000, generator=torch.Generator().manual_seed(0), dtype=torch.float64)])
     assert q.shape[0] > tqmath.SMALL_BATCH_ROWS

@@ -28,7 +28,7 @@ from torch import Tensor
 from ._euler_forms import forms_tables
 from . import _closed_form as closed_form
 from ._closed_form import Rule
-from ._math import constant, zero_to_inf
+from ._math import constant, outer_product, zero_to_inf
 from .conventions import EULER_CONVENTIONS, EulerConvention
 
 # (form, sign) of each pair's y and x; forms are numbered as in _euler_forms
@@ -57,7 +57,7 @@ _NAMES = {name: tuple(f"euler_{part}_{name}" for part in ("q_layout", "R_layout"
 def _quat_layout_and_scale(q: Tensor, conv: EulerConvention):
     """The forms of ``q`` scaled by ``1 / |abcd|^2`` (scale-invariant angles; ``q = 0`` gives NaN),
     and ``|abcd|^2``, shaped ``(..., 1, 1)``."""
-    unscaled = ((q.unsqueeze(-1) * q.unsqueeze(-2)).flatten(-2)
+    unscaled = (outer_product(q, q)
                 @ constant(_NAMES[conv.name][0], _TABLES[conv.name][0], q)).unflatten(-1, (4, 2))
     scale = unscaled[..., 3:, 1:]
     return unscaled / scale, scale  # (the last pair's x is |abcd|^2 / |abcd|^2: exactly 1)

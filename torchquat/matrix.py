@@ -6,7 +6,7 @@ from torch import Tensor
 from . import _closed_form as closed_form
 from ._closed_form import Rule, jacobian_rule
 from ._dispatch import kernel
-from ._math import bilinear, bilinear_terms, constant, contract, is_small, sum_of_squares
+from ._math import bilinear, bilinear_terms, constant, contract, is_small, outer_product, sum_of_squares
 from ._planes import columns, planar, plane_buffer, rows, slot
 from ._validation import prepare, restore
 from .quaternion import standardize_sign
@@ -87,7 +87,7 @@ def quat_to_matrix_unchecked(q: Tensor) -> Tensor:
     if is_small(q, 4):
         # Few rotations: cost is per-operation dispatch, so use 4 ops: the outer product, one
         # small matmul against the constant table, a division (NOTES: 5-10 us an op at N = 1).
-        h = contract((q.unsqueeze(-1) * q.unsqueeze(-2)).flatten(-2), "homogeneous", _HOMOGENEOUS)
+        h = contract(outer_product(q, q), "homogeneous", _HOMOGENEOUS)
         return (h[..., :9] / h[..., 9:]).unflatten(-1, (3, 3))
     if planar(q, 4, _PLANAR_SHARE):
         return closed_form.apply(_QUAT_TO_MATRIX_PLANAR, q)

@@ -15,7 +15,7 @@ from torch import Tensor
 from . import _closed_form as closed_form
 from ._closed_form import Rule
 from ._dispatch import kernel
-from ._math import bilinear, bilinear_terms, constant, contract, is_small, sum_of_squares
+from ._math import bilinear, bilinear_terms, constant, contract, is_small, outer_product, sum_of_squares
 from ._planes import columns, planar, plane_buffer, rows, slot
 from ._validation import prepare, prepare_pair, restore
 
@@ -80,7 +80,7 @@ _PRODUCT_COLUMNWISE = Rule(_product_columnwise, _product_columnwise_parts, _prod
 def hamilton_product(p: Tensor, q: Tensor) -> Tensor:
     """Unchecked Hamilton product of prepared tensors (used internally)."""
     if is_small(p, 4) and is_small(q, 4):
-        return contract((p.unsqueeze(-1) * q.unsqueeze(-2)).flatten(-2), "product", _PRODUCT)
+        return contract(outer_product(p, q), "product", _PRODUCT)
     if torch.compiler.is_compiling():
         return _product_columnwise(p, q)
     return closed_form.apply(_PRODUCT_COLUMNWISE, p, q)
