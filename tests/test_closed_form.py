@@ -149,7 +149,8 @@ def test_columnwise_euler_angles_backward_matches_autograd(convention, is_matrix
     q = torch.cat([_samples(), tq.euler_to_quat(lock_angles(convention)[0] + torch.tensor([0.0, 1e-5, 0.0], dtype=torch.float64),
                                                 convention)])
     x = tq.quat_to_matrix(q) if is_matrix else q
-    plain = E._matrix_to_euler_columnwise if is_matrix else E._quat_to_euler_planar
+    from torchquat import _euler_forms as forms
+    plain = forms.matrix_to_euler_columnwise if is_matrix else forms.quat_to_euler_planar
     grad = torch.randn(x.shape[0], 3, dtype=x.dtype, generator=torch.Generator().manual_seed(17))
     leaf = x.clone().requires_grad_()
     expected = plain(leaf, conv, 1e-7)
@@ -181,6 +182,15 @@ def test_quat_to_matrix_planar_backward_matches_autograd(monkeypatch):
     assert torch.equal(got, expected)
     scale = q.norm(dim=-1, keepdim=True)  # the gradient scales as 1 / |q|
     assert torch.allclose(g_got * scale, g_expected * scale, atol=1e-13, rtol=0)
+
+
+def test_a_matrix_forms_abcd_norm_is_a_constant():
+    # the column-wise matrix -> Euler takes |abcd|^2 as a number: its table column must be all 0
+    from torchquat._euler_forms import DENSE, forms_tables
+    for name in EULER_CONVENTIONS:
+        _, matrix_table, offset = forms_tables(name)[:3]
+        assert not any(row[13] for row in matrix_table)
+        assert DENSE[name][3] == offset[13] == (1.0 if EULER_CONVENTIONS[name].symmetric else 2.0)
 
 
 def test_matrix_to_quat_jacobian_matches_autograd_for_every_shepperd_choice():

@@ -7,7 +7,9 @@ forms in ``(a, b, c, d)`` (see :func:`_build_forms_tables`). Quadratic forms of 
 in ``q q^T`` and, for a unit ``q``, in R's entries, so one table per convention serves both
 inputs. Two evaluations give the same angles to rounding: ``torchquat._euler_small`` (few
 dispatches and a closed-form backward: small batches) and :func:`angles_columnwise` (1-D
-columns: large batches and ``torch.compile``).
+columns: large batches and ``torch.compile``), whose eager rules for quaternions and matrices
+(:data:`QUAT_TO_EULER_PLANAR`, :data:`MATRIX_TO_EULER_COLUMNWISE`) live here too, with their
+closed-form backward (:func:`forms_gradient`).
 """
 
 import math
@@ -16,8 +18,9 @@ from typing import Optional
 import torch
 from torch import Tensor
 
-from ._math import constant, safe_sqrt, sparse_columns, zero_to_inf
-from ._planes import rows
+from ._closed_form import Rule
+from ._math import bilinear, bilinear_terms, constant, safe_sqrt, sparse_columns, zero_to_inf
+from ._planes import columns, combinations, plane_buffer, rows, slot
 from .conventions import EULER_CONVENTIONS, EulerConvention
 from .matrix import _SHEPPERD, _SHEPPERD_OFFSET, _SHEPPERD_ROWS
 
@@ -154,7 +157,6 @@ def _dense_tables(name: str):
     quat_table, matrix_table, offset, _, _ = forms_tables(name)
     pairs = tuple(tuple(quat_table[4 * i + j][f] + (quat_table[4 * j + i][f] if i != j else 0.0)
                         for f in ANGLE_FORMS + (13,)) for i, j in PAIRS)
-    assert not any(row[13] for row in matrix_table)
     return (pairs, tuple(tuple(row[f] for f in ANGLE_FORMS) for row in matrix_table),
             tuple(offset[f] for f in ANGLE_FORMS), offset[13])
 
@@ -248,3 +250,89 @@ def forms_gradient(grad, saved, conv: EulerConvention, out: Optional[Tensor] = N
     g_y_zero, g_x_zero = torch.mul(g_y_double, weight, out=slot(2)), torch.mul(g_x_double, weight, out=slot(3))
     return [torch.addcmul(r1 * x1_used, s, y1, out=slot(0)), torch.addcmul(-r1 * y1_used, s, x1, out=slot(1)),
             g_y_zero, g_x_zero, torch.sub(g_y_double, g_y_zero, out=slot(4)), torch.sub(g_x_double, g_x_zero, out=slot(5)), g_z]
+
+
+# Contiguous columns (measured crossovers, with the closed-form backward): quat -> Euler from 65,536
+# rows (its forward is 1.06-1.13x slower at 8-32k); matrix -> Euler from the large path's first
+# rows (0.91-0.95 of the strided code's time at 1,100-8,192 rows, forward and forward+backward)
+QUAT_TO_EULER_PLANAR_SHARE, MATRIX_TO_EULER_PLANAR_SHARE = 2.0, 1.0 / 32
+
+
+def _quat_to_euler_planar_parts(q: Tensor, convention: EulerConvention, eps: float):
+    """Contiguous columns: the forms from q's 10 products in one matmul; the angles, and what the
+    closed-form backward needs."""
+    share = QUAT_TO_EULER_PLANAR_SHARE
+    components = columns(q, share=share)
+    buffer = plane_buffer(len(PAIRS), components, share)
+    products = [torch.mul(components[u], components[v], out=slot(buffer, p)) for p, (u, v) in enumerate(PAIRS)]
+    *forms, abcd2 = combinations(products if buffer is None else buffer, DENSE[convention.name][0],
+                                 "euler_q_" + convention.name, share=share)
+    buffer = plane_buffer(3, forms, share)
+    angles, saved = angles_parts(forms, convention, eps, abcd2, nan_where=abcd2 == 0, out=buffer)
+    return rows(angles if buffer is None else buffer, share=share), (*components, *saved)
+
+
+def quat_to_euler_planar(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
+    return _quat_to_euler_planar_parts(q, convention, eps)[0]
+
+
+def _product_gradient_terms(name: str):
+    """For the backward of the forms' products: the forms' gradient to the products' (the
+    transposed table, 7 x 10), and the bilinear terms of ``d(q_u q_v) = q_v dq_u + q_u dq_v``
+    (row ``4 p + v``: the product p's gradient times component v, to component u)."""
+    pairs_table = DENSE[name][0]
+    transposed = tuple(tuple(row[f] for row in pairs_table) for f in range(len(ANGLE_FORMS)))
+    table = [[0.0] * 4 for _ in range(4 * len(PAIRS))]
+    for p, (u, v) in enumerate(PAIRS):
+        table[4 * p + v][u] += 1.0
+        table[4 * p + u][v] += 1.0
+    return transposed, bilinear_terms(table, 4)
+
+
+_PRODUCT_GRADIENT = {name: _product_gradient_terms(name) for name in EULER_CONVENTIONS}
+
+
+def _quat_to_euler_planar_backward(grad: Tensor, inputs, saved, convention: EulerConvention, eps: float):
+    share = QUAT_TO_EULER_PLANAR_SHARE
+    components, saved = saved[:4], saved[4:]
+    transposed, terms = _PRODUCT_GRADIENT[convention.name]
+    g = columns(grad, share=share)
+    buffer = plane_buffer(len(ANGLE_FORMS), g, share)
+    g_forms = forms_gradient(g, saved, convention, out=buffer)
+    g_products = combinations(g_forms if buffer is None else buffer, transposed, "euler_q_grad_" + convention.name, share=share)
+    return (rows(bilinear(g_products, components, terms, out=plane_buffer(4, g_products, share)), share=share),)
+
+
+QUAT_TO_EULER_PLANAR = Rule(quat_to_euler_planar, _quat_to_euler_planar_parts, _quat_to_euler_planar_backward)
+
+
+def _matrix_to_euler_columnwise_parts(R: Tensor, convention: EulerConvention, eps: float):
+    """The forms from R's entries (eager CPU: one matmul; else one pass per term); the angles, and
+    what the closed-form backward needs."""
+    _, table, offset, abcd2 = DENSE[convention.name]
+    forms = columns(R.flatten(-2), table, "euler_R_" + convention.name, offset, share=MATRIX_TO_EULER_PLANAR_SHARE)
+    buffer = plane_buffer(3, forms, MATRIX_TO_EULER_PLANAR_SHARE)
+    angles, saved = angles_parts(forms, convention, eps, abcd2, out=buffer)
+    return rows(angles if buffer is None else buffer, share=MATRIX_TO_EULER_PLANAR_SHARE), saved
+
+
+def matrix_to_euler_columnwise(R: Tensor, convention: EulerConvention, eps: float) -> Tensor:
+    return _matrix_to_euler_columnwise_parts(R, convention, eps)[0]
+
+
+# the forms' gradient to R's entries: the matrix tables transposed (7 x 9)
+_MATRIX_FORMS_TRANSPOSED = {name: tuple(zip(*DENSE[name][1])) for name in EULER_CONVENTIONS}
+
+
+def _matrix_to_euler_columnwise_backward(grad: Tensor, inputs, saved, convention: EulerConvention, eps: float):
+    share = MATRIX_TO_EULER_PLANAR_SHARE
+    g = columns(grad, share=share)
+    buffer = plane_buffer(len(ANGLE_FORMS), g, share)
+    g_forms = forms_gradient(g, saved, convention, out=buffer)  # the forms are linear in R
+    g_R = rows(g_forms if buffer is None else buffer, _MATRIX_FORMS_TRANSPOSED[convention.name],
+               "euler_R_grad_" + convention.name, share=share)
+    return (g_R.view(inputs[0].shape),)
+
+
+MATRIX_TO_EULER_COLUMNWISE = Rule(matrix_to_euler_columnwise, _matrix_to_euler_columnwise_parts,
+                                   _matrix_to_euler_columnwise_backward)

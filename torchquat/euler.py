@@ -21,10 +21,11 @@ from torch import Tensor
 from . import _closed_form as closed_form
 from ._closed_form import Rule, jacobian_rule
 from ._dispatch import kernel
-from ._euler_forms import ANGLE_FORMS, COLUMNWISE, DENSE, PAIRS, angles_columnwise, angles_parts, forms_gradient
+from ._euler_forms import (COLUMNWISE, MATRIX_TO_EULER_COLUMNWISE, PAIRS, QUAT_TO_EULER_PLANAR,
+                           QUAT_TO_EULER_PLANAR_SHARE, angles_columnwise, matrix_to_euler_columnwise)
 from ._euler_small import euler_angles, lock, matrix_layout, quat_layout
 from ._math import HALF_IDENTITY, bilinear, bilinear_terms, combine, constant, contract, is_small
-from ._planes import columns, combinations, planar, plane_buffer, rows, slot
+from ._planes import columns, planar, plane_buffer, rows, slot
 from ._validation import prepare, restore
 from .conventions import EULER_CONVENTIONS, EulerConvention, gimbal_eps, parse_convention
 from .matrix import quat_to_matrix_unchecked
@@ -88,10 +89,6 @@ _SIGN_TABLES: Dict[str, Tuple[Tuple[int, ...], ...]] = {
     name: _sign_table(conv) for name, conv in EULER_CONVENTIONS.items()
 }
 _MATRIX_TABLES = {name: _matrix_table(conv) for name, conv in EULER_CONVENTIONS.items()}
-# Contiguous columns (measured crossovers, with the closed-form backward): quat -> Euler from 65,536
-# rows (its forward is 1.06-1.13x slower at 8-32k); matrix -> Euler from the large path's first
-# rows (0.91-0.95 of the strided code's time at 1,100-8,192 rows, forward and forward+backward)
-_QUAT_TO_EULER_PLANAR_SHARE, _MATRIX_TO_EULER_PLANAR_SHARE = 2.0, 1.0 / 32
 _SIGN_BILINEAR = {name: bilinear_terms(table, 2) for name, table in _SIGN_TABLES.items()}  # (column-wise form)
 
 
@@ -118,10 +115,10 @@ def _gather_plan(with_one: bool, slots: bool, scale: float):
     rule's factor for half angles)."""
     k = 3 if with_one else 2
     index, coefficient, offset = [], [], []
-    for slot in range(4 if slots else 1):
+    for copy in range(4 if slots else 1):
         for flat in _OUTER_INDEX[with_one]:
             n, j = divmod(flat, k)
-            derivative = slot == n + 1
+            derivative = copy == n + 1
             trig, c, o = _FACTOR_ENTRIES[with_one][j + (k if derivative else 0)]
             index.append(2 * n + trig)
             coefficient.append(c * scale if derivative else c)
@@ -341,90 +338,10 @@ def euler_to_matrix(angles: Tensor, convention: str, degrees: bool = False) -> T
     return restore(euler_to_matrix_unchecked(_to_radians(angles, degrees), convention=conv), dtype)
 
 
-def _quat_to_euler_planar_parts(q: Tensor, convention: EulerConvention, eps: float):
-    """Contiguous columns: the forms from q's 10 products in one matmul; the angles, and what the
-    closed-form backward needs."""
-    share = _QUAT_TO_EULER_PLANAR_SHARE
-    components = columns(q, share=share)
-    buffer = plane_buffer(len(PAIRS), components, share)
-    products = [torch.mul(components[u], components[v], out=slot(buffer, p)) for p, (u, v) in enumerate(PAIRS)]
-    *forms, abcd2 = combinations(products if buffer is None else buffer, DENSE[convention.name][0],
-                                 "euler_q_" + convention.name, share=share)
-    buffer = plane_buffer(3, forms, share)
-    angles, saved = angles_parts(forms, convention, eps, abcd2, nan_where=abcd2 == 0, out=buffer)
-    return rows(angles if buffer is None else buffer, share=share), (*components, *saved)
-
-
-def _quat_to_euler_planar(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
-    return _quat_to_euler_planar_parts(q, convention, eps)[0]
-
-
-def _product_gradient_terms(name: str):
-    """For the backward of the forms' products: the forms' gradient to the products' (the
-    transposed table, 7 x 10), and the bilinear terms of ``d(q_u q_v) = q_v dq_u + q_u dq_v``
-    (row ``4 p + v``: the product p's gradient times component v, to component u)."""
-    pairs_table = DENSE[name][0]
-    transposed = tuple(tuple(row[f] for row in pairs_table) for f in range(len(ANGLE_FORMS)))
-    table = [[0.0] * 4 for _ in range(4 * len(PAIRS))]
-    for p, (u, v) in enumerate(PAIRS):
-        table[4 * p + v][u] += 1.0
-        table[4 * p + u][v] += 1.0
-    return transposed, bilinear_terms(table, 4)
-
-
-_PRODUCT_GRADIENT = {name: _product_gradient_terms(name) for name in EULER_CONVENTIONS}
-
-
-def _quat_to_euler_planar_backward(grad: Tensor, inputs, saved, convention: EulerConvention, eps: float):
-    share = _QUAT_TO_EULER_PLANAR_SHARE
-    components, saved = saved[:4], saved[4:]
-    transposed, terms = _PRODUCT_GRADIENT[convention.name]
-    g = columns(grad, share=share)
-    buffer = plane_buffer(len(ANGLE_FORMS), g, share)
-    g_forms = forms_gradient(g, saved, convention, out=buffer)
-    g_products = combinations(g_forms if buffer is None else buffer, transposed, "euler_q_grad_" + convention.name, share=share)
-    return (rows(bilinear(g_products, components, terms, out=plane_buffer(4, g_products, share)), share=share),)
-
-
-_QUAT_TO_EULER_PLANAR = Rule(_quat_to_euler_planar, _quat_to_euler_planar_parts, _quat_to_euler_planar_backward)
-
-
-def _matrix_to_euler_columnwise_parts(R: Tensor, convention: EulerConvention, eps: float):
-    """The forms from R's entries (eager CPU: one matmul; else one pass per term); the angles, and
-    what the closed-form backward needs."""
-    _, table, offset, abcd2 = DENSE[convention.name]
-    forms = columns(R.flatten(-2), table, "euler_R_" + convention.name, offset, share=_MATRIX_TO_EULER_PLANAR_SHARE)
-    buffer = plane_buffer(3, forms, _MATRIX_TO_EULER_PLANAR_SHARE)
-    angles, saved = angles_parts(forms, convention, eps, abcd2, out=buffer)
-    return rows(angles if buffer is None else buffer, share=_MATRIX_TO_EULER_PLANAR_SHARE), saved
-
-
-def _matrix_to_euler_columnwise(R: Tensor, convention: EulerConvention, eps: float) -> Tensor:
-    return _matrix_to_euler_columnwise_parts(R, convention, eps)[0]
-
-
-# the forms' gradient to R's entries: the matrix tables transposed (7 x 9)
-_MATRIX_FORMS_TRANSPOSED = {name: tuple(zip(*DENSE[name][1])) for name in EULER_CONVENTIONS}
-
-
-def _matrix_to_euler_columnwise_backward(grad: Tensor, inputs, saved, convention: EulerConvention, eps: float):
-    share = _MATRIX_TO_EULER_PLANAR_SHARE
-    g = columns(grad, share=share)
-    buffer = plane_buffer(len(ANGLE_FORMS), g, share)
-    g_forms = forms_gradient(g, saved, convention, out=buffer)  # the forms are linear in R
-    g_R = rows(g_forms if buffer is None else buffer, _MATRIX_FORMS_TRANSPOSED[convention.name],
-               "euler_R_grad_" + convention.name, share=share)
-    return (g_R.view(inputs[0].shape),)
-
-
-_MATRIX_TO_EULER_COLUMNWISE = Rule(_matrix_to_euler_columnwise, _matrix_to_euler_columnwise_parts,
-                                   _matrix_to_euler_columnwise_backward)
-
-
 @kernel
 def quat_to_euler_unchecked(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
-    if planar(q, 4, _QUAT_TO_EULER_PLANAR_SHARE):
-        return closed_form.apply(_QUAT_TO_EULER_PLANAR, q, convention=convention, eps=eps)
+    if planar(q, 4, QUAT_TO_EULER_PLANAR_SHARE):
+        return closed_form.apply(QUAT_TO_EULER_PLANAR, q, convention=convention, eps=eps)
     if not is_small(q, 4, share=0.25):  # crossover measured near 1000 rows
         abcd_terms, pair_terms = COLUMNWISE[convention.name]
         components = columns(q)  # once: under compile each unbind's backward is an (N, 4) buffer of its own
@@ -475,8 +392,8 @@ def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Option
 def matrix_to_euler_unchecked(R: Tensor, convention: EulerConvention, eps: float) -> Tensor:
     if not is_small(R, 9, share=0.25):  # crossover measured near 1000 rows (with the closed-form backward)
         if torch.compiler.is_compiling():
-            return _matrix_to_euler_columnwise(R, convention, eps)
-        return closed_form.apply(_MATRIX_TO_EULER_COLUMNWISE, R, convention=convention, eps=eps)
+            return matrix_to_euler_columnwise(R, convention, eps)
+        return closed_form.apply(MATRIX_TO_EULER_COLUMNWISE, R, convention=convention, eps=eps)
     return euler_angles(R, convention, eps, is_matrix=True)
 
 
