@@ -191,26 +191,26 @@ def _axis_angle_to_quat_columnwise_parts(v: Tensor):
     x = torch.sqrt(x2)
     cos_half = torch.cos(x)
     sinc = torch.where(x2 < torch.finfo(v.dtype).eps ** 2, 1.0, torch.sin(x) / x)
-    sign = torch.copysign(torch.ones_like(cos_half), cos_half)  # (an eager where on a random sign mispredicts)
+    sign = torch.copysign(constant("one", 1.0, cos_half), cos_half)  # (an eager where on a random sign mispredicts)
     s = sinc * sign
     buffer = plane_buffer(4, h)
     q = [torch.mul(cos_half, sign, out=slot(buffer, 0))] + [torch.mul(c, s, out=slot(buffer, i)) for i, c in enumerate(h, 1)]
-    return rows(q if buffer is None else buffer), (*h, x2, cos_half, sinc, sign)
+    return rows(q if buffer is None else buffer), (*h, x2, q[0], s)
 
 
 def _axis_angle_to_quat_columnwise_backward(grad: Tensor, inputs, saved):
     # q = sign (cos x, r h) with h = v / 2, x = |h|, r = sin(x) / x: d q_w = -r h.dh,
     # d q_u = r dh + k h (h.dh) with k = r'(x) / x = (cos x - r) / x^2 (series -1/3 + x^2 / 30 below
-    # x^2 = sqrt(eps): its cancellation, eps / x^2 relative, multiplies h h^T ~ x^2: eps absolute)
-    *h, x2, cos_half, sinc, sign = saved
+    # x^2 = sqrt(eps): its cancellation, eps / x^2 relative, multiplies h h^T ~ x^2: eps absolute).
+    # Saved: q_w = sign cos x and s = sign r, so sign k = (q_w - s) / x^2 (sign = 1 in the series branch)
+    *h, x2, w, s = saved
     g_w, *g_u = columns(grad, HALF_IDENTITY[4], "half4")  # (dh = dv / 2, in the transpose)
     small = x2 < torch.finfo(x2.dtype).eps ** 0.5
-    k = torch.where(small, x2 * (1.0 / 30.0) - 1.0 / 3.0, (cos_half - sinc) / torch.where(small, 1.0, x2))
+    k = torch.where(small, x2 * (1.0 / 30.0) - 1.0 / 3.0, (w - s) / torch.where(small, 1.0, x2))
     dot = g_u[0] * h[0]
     for g, c in zip(g_u[1:], h[1:]):
         dot = torch.addcmul(dot, g, c)
-    s = sinc * sign
-    along = torch.addcmul(k * sign * dot, s, g_w, value=-1.0)
+    along = torch.addcmul(k * dot, s, g_w, value=-1.0)
     buffer = plane_buffer(3, h)
     g_v = [torch.addcmul(s * g, along, c, out=slot(buffer, i)) for i, (g, c) in enumerate(zip(g_u, h))]
     return (rows(g_v if buffer is None else buffer),)
