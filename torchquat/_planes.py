@@ -138,7 +138,7 @@ def plane_buffer(k: int, cols: Sequence[Tensor], share: float = 1.0) -> Optional
     1.6 ms for 4 columns of 1e6, 4.6 ms for 9). Only on the path of contiguous columns and where
     nothing records a graph (autograd refuses ``out=``): a closed-form rule's forward and backward,
     and values; ``None`` elsewhere. ``cols``: the columns the planes are computed from (their
-broadcast batch shape, dtype and device)."""
+    broadcast batch shape, dtype and device)."""
     if torch.compiler.is_compiling():
         return None
     like = max(cols, key=Tensor.numel)

@@ -168,34 +168,32 @@ def quat_to_axis_angle_unchecked(q: Tensor) -> Tensor:
 # do not); axis_angle_to_quat also takes it for large eager batches, where it is faster.
 
 
-def _axis_angle_to_quat_columnwise(v: Tensor) -> Tensor:
-    x, y, z = components = columns(v)
-    theta2 = sum_of_squares(components)
-    small = theta2 < small_angle_threshold(v.dtype)
-    theta = torch.sqrt(torch.where(small, 1.0, theta2))
-    half = 0.5 * theta
-    cos_half = torch.where(small, 1.0 - 0.125 * theta2, torch.cos(half))
-    sinc_half = torch.where(small, 0.5 - theta2 / 48.0, torch.sin(half) / theta)
-    sign = torch.copysign(torch.ones_like(cos_half), cos_half)  # (an eager where on a random sign mispredicts)
-    s = sinc_half * sign
-    return rows((cos_half * sign, x * s, y * s, z * s))
-
-
-def _axis_angle_to_quat_columnwise_parts(v: Tensor):
-    """The same quaternion for the closed-form backward, which takes its own series: no autograd
-    runs through these values, so they need no substitutes, and ``sin(x) / x`` of the half angle
-    is exact to rounding down to ``x^2 < eps^2``, where it is 1 (the next term, ``x^2 / 6``, is
-    below rounding). Returns the quaternion and what the backward needs."""
+def _axis_angle_to_quat_columnwise_parts(v: Tensor, for_autograd: bool = False):
+    """The quaternion column by column, and what the closed-form backward needs. ``for_autograd``
+    (the plain forward: double backward, ``torch.func``, compile): Taylor series below
+    ``theta^2 < sqrt(eps)``, so that autograd's gradients stay exact there and never see 0 / 0.
+    Otherwise nothing differentiates these values: ``sin(x) / x`` of the half angle is exact to
+    rounding down to ``x^2 < eps^2``, where it is 1 (the next term, ``x^2 / 6``, is below rounding)."""
     h = columns(v, HALF_IDENTITY[3], "half3")  # v / 2: its norm is the half angle
     x2 = sum_of_squares(h)
-    x = torch.sqrt(x2)
-    cos_half = torch.cos(x)
-    sinc = torch.where(x2 < torch.finfo(v.dtype).eps ** 2, 1.0, torch.sin(x) / x)
+    if for_autograd:
+        small = x2 < small_angle_threshold(v.dtype) * 0.25  # (theta^2 = 4 x^2)
+        x = torch.sqrt(torch.where(small, 1.0, x2))
+        cos_half = torch.where(small, 1.0 - 0.5 * x2, torch.cos(x))
+        sinc = torch.where(small, 1.0 - x2 / 6.0, torch.sin(x) / x)
+    else:
+        x = torch.sqrt(x2)
+        cos_half = torch.cos(x)
+        sinc = torch.where(x2 < torch.finfo(v.dtype).eps ** 2, 1.0, torch.sin(x) / x)
     sign = torch.copysign(constant("one", 1.0, cos_half), cos_half)  # (an eager where on a random sign mispredicts)
     s = sinc * sign
     buffer = plane_buffer(4, h)
     q = [torch.mul(cos_half, sign, out=slot(buffer, 0))] + [torch.mul(c, s, out=slot(buffer, i)) for i, c in enumerate(h, 1)]
     return rows(q if buffer is None else buffer), (*h, x2, q[0], s)
+
+
+def _axis_angle_to_quat_columnwise(v: Tensor) -> Tensor:
+    return _axis_angle_to_quat_columnwise_parts(v, for_autograd=True)[0]
 
 
 def _axis_angle_to_quat_columnwise_backward(grad: Tensor, inputs, saved):
@@ -221,31 +219,27 @@ _AXIS_ANGLE_TO_QUAT_COLUMNWISE = Rule(_axis_angle_to_quat_columnwise, _axis_angl
                                       lambda v: _axis_angle_to_quat_columnwise_parts(v)[0])
 
 
-def _quat_to_axis_angle_columnwise(q: Tensor) -> Tensor:
-    w, x, y, z = columns(q)
-    hemisphere = torch.copysign(torch.full_like(w, 2.0), w)  # (as the table path: -0.0 takes -2)
-    w = w.abs()
-    n2 = sum_of_squares((x, y, z))
-    small = n2 <= torch.finfo(q.dtype).eps * (w * w)
-    n = torch.sqrt(torch.where(small, 1.0, n2))
-    w_safe = torch.where(small, w, 1.0)
-    scale = torch.where(small, 1.0 / w_safe, torch.atan2(n, w) / n) * hemisphere
-    return rows((x * scale, y * scale, z * scale))
-
-
-def _quat_to_axis_angle_columnwise_parts(q: Tensor):
-    """The same rotation vector with what the closed-form backward needs (no autograd runs through
-    these values, so a NaN in a branch that ``where`` drops is harmless: no substitutes)."""
+def _quat_to_axis_angle_columnwise_parts(q: Tensor, for_autograd: bool = False):
+    """The rotation vector column by column, and what the closed-form backward needs.
+    ``for_autograd`` (the plain forward): the series branch's rows get substitutes that keep
+    autograd away from 0 / 0; otherwise a NaN in a branch that ``where`` drops is harmless."""
     w0, *u = columns(q)
     n2 = sum_of_squares(u)
     w = w0.abs()
     small = torch.addcmul(n2, w, w, value=-torch.finfo(q.dtype).eps) <= 0  # n^2 <= eps w^2
-    n = torch.sqrt(n2)
-    # angle / (2 n), signed by the hemisphere (as the table path, copysign: m >= 0); rows() doubles it
-    m = torch.copysign(torch.where(small, torch.reciprocal(w), torch.atan2(n, w) / n), w0)
+    if for_autograd:
+        n, inverse = torch.sqrt(torch.where(small, 1.0, n2)), torch.reciprocal(torch.where(small, w, 1.0))
+    else:
+        n, inverse = torch.sqrt(n2), torch.reciprocal(w)
+    # angle / (2 n), signed by the hemisphere (as the table path, copysign: -0.0 takes -1); rows() doubles it
+    m = torch.copysign(torch.where(small, inverse, torch.atan2(n, w) / n), w0)
     buffer = plane_buffer(3, u)
     v = [torch.mul(c, m, out=slot(buffer, i)) for i, c in enumerate(u)]
     return rows(v if buffer is None else buffer, _DOUBLE, "double3"), (w0, *u, n2, small, m)
+
+
+def _quat_to_axis_angle_columnwise(q: Tensor) -> Tensor:
+    return _quat_to_axis_angle_columnwise_parts(q, for_autograd=True)[0]
 
 
 # m in the column code is half the rotation vector's factor: rows() doubles the output and the
