@@ -7,6 +7,7 @@ row independence, dtypes) parametrize over this table, so a failure names its fu
 import math
 
 import torch
+from torch.utils._python_dispatch import TorchDispatchMode
 
 import torchquat as tq
 from rotation_samples import CONVENTIONS, all_singular, cube_rotations, lock_angles
@@ -150,3 +151,16 @@ def compiled_against_eager(fn, inputs):
     finally:
         tq.use_compiled_kernels(True)
     return out.detach(), grads, ref.detach(), ref_grads
+
+
+class DispatchRecorder(TorchDispatchMode):
+    """Inside ``with DispatchRecorder() as recorder:``, ``recorder.names`` lists the ATen operations
+    dispatched, in order (``func.overloadpacket`` names: "mm", "stack", ...)."""
+
+    def __init__(self):
+        super().__init__()
+        self.names = []
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        self.names.append(func.overloadpacket.__name__)
+        return func(*args, **(kwargs or {}))

@@ -9,7 +9,7 @@ import torch
 import torchquat as tq
 import torchquat._math as tqmath
 import torchquat._planes as _planes
-from function_table import ALL, BINARY, assert_paths_agree, singular_quats
+from function_table import ALL, BINARY, DispatchRecorder, assert_paths_agree, singular_quats
 
 PATH_DEPENDENT = ["quat_to_matrix", "quat_multiply", "quat_rotate", "matrix_to_quat", "axis_angle_to_quat",
                   "quat_to_axis_angle", "quat_geodesic_distance", "matrix_geodesic_distance", "rot6d_to_matrix", "euler_to_quat[ZYZ]", "euler_to_quat[xzy]"] + [
@@ -24,6 +24,37 @@ def large_batches(request, monkeypatch):
     """A callable that sends every batch down the large-batch path, in the layout the test runs on."""
     monkeypatch.setattr(tqmath, "PLANAR_ROWS", LAYOUTS[request.param])
     return lambda: monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 0)
+
+
+# Rows up to which a GPU batch takes the table path (``GPU_SMALL_BATCH_ROWS`` times the kernel's
+# gpu_share), as measured on an H100 (docs/bench_profile.md, "On a GPU").
+GPU_TABLE_ROWS = {"quat_to_matrix": 4 << 20, "quat_multiply": 4 << 20, "rot6d_to_matrix": 4 << 20,
+                  "quat_to_axis_angle": 4 << 20, "matrix_to_euler[ZYX]": 4 << 20, "matrix_to_euler[yxy]": 4 << 20,
+                  "quat_to_euler[ZYX]": 1 << 20, "quat_to_euler[ZXZ]": 1 << 20, "axis_angle_to_quat": 1 << 20,
+                  "quat_geodesic_distance": 1 << 20, "euler_to_quat[ZYZ]": 1 << 18, "euler_to_quat[xzy]": 1 << 18,
+                  "euler_to_matrix[ZYX]": 1 << 18, "matrix_to_quat": 1 << 18}
+
+
+def _dispatched(fn, inputs, rows, device):
+    """The operations ``fn``'s forward and backward dispatch on empty inputs of ``rows`` rows."""
+    shaped = tuple(torch.empty((rows,) + x.shape[1:], dtype=x.dtype, device=device, requires_grad=True)
+                   for x in inputs)
+    with DispatchRecorder() as recorder:
+        out = fn(*shaped)
+        torch.autograd.grad(out, shaped, torch.ones_like(out))
+    return recorder.names
+
+
+@pytest.mark.parametrize("name", sorted(GPU_TABLE_ROWS))
+def test_gpu_batches_take_the_table_path_up_to_the_measured_crossover(name):
+    # Off the CPU, launches and not memory passes set the cost, so the few-operation path runs far
+    # larger batches there. Shape-only decisions: empty tensors on the meta device stand in for a GPU.
+    fn, generic, _ = ALL[name]
+    # (1,024 rows: past the table path's own size-dependent choices, e.g. the outer product's matmul)
+    inputs, rows = generic(), GPU_TABLE_ROWS[name]
+    table_path = _dispatched(fn, inputs, 1024, "meta")
+    assert _dispatched(fn, inputs, rows, "meta") == table_path
+    assert _dispatched(fn, inputs, rows + 1, "meta") != table_path
 
 
 @pytest.mark.parametrize("name", PATH_DEPENDENT)
@@ -91,28 +122,19 @@ def test_planes_written_in_place_give_the_same_numbers(name, monkeypatch):
 def test_forward_on_contiguous_columns_writes_its_output_planes_without_a_stack(name, monkeypatch):
     # the point of plane_buffer: the last passes write the planes that rows() transposes, so no
     # torch.stack (a pass over every output column) is dispatched when nothing records a graph
-    from torch.utils._python_dispatch import TorchDispatchMode
-
-    class Record(TorchDispatchMode):
-        def __torch_dispatch__(self, func, types, args=(), kwargs=None):
-            ops.append(func.overloadpacket.__name__)
-            return func(*args, **(kwargs or {}))
-
     fn, generic, _ = ALL[name]
     monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 0)
     monkeypatch.setattr(tqmath, "PLANAR_ROWS", 0)
     inputs = generic()
-    ops = []
-    with torch.no_grad(), Record():
+    with torch.no_grad(), DispatchRecorder() as record:
         fn(*inputs)
-    assert "mm" in ops and "stack" not in ops, ops
+    assert "mm" in record.names and "stack" not in record.names, record.names
     leaves = tuple(x.clone().requires_grad_() for x in inputs)
-    ops = []
-    with Record():
+    with DispatchRecorder() as record:
         out = fn(*leaves)
         if type(out.grad_fn).__name__ == "_ClosedFormBackward":  # its forward and backward write planes too
             torch.autograd.grad(out, leaves, torch.ones_like(out))
-            assert "stack" not in ops, ops
+            assert "stack" not in record.names, record.names
 
 
 def test_plane_buffer_only_where_nothing_records(monkeypatch):

@@ -35,12 +35,17 @@ def without_host_sync(call, name=""):
         torch.cuda.set_sync_debug_mode("default")
 
 
+def force_large_path(monkeypatch):
+    monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 0)
+    monkeypatch.setattr(tqmath, "GPU_SMALL_BATCH_ROWS", 0)
+
+
 @pytest.mark.parametrize("large", [False, True], ids=["small path", "large path"])
 @pytest.mark.parametrize("name", sorted(ALL))
 def test_cuda_matches_cpu_without_a_host_sync(name, large, monkeypatch):
     fn, generic, singular = ALL[name]
     if large:
-        monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 0)
+        force_large_path(monkeypatch)
     for make in (generic, singular):
         cpu = tuple(x.clone().requires_grad_() for x in make())
         ref = fn(*cpu)
@@ -73,8 +78,11 @@ def test_cuda_closed_form_backward_has_exact_second_derivatives(name):
     assert torch.autograd.gradgradcheck(lambda *xs: fn(*xs), inputs, nondet_tol=1e-12)
 
 
-@pytest.mark.parametrize("n", [7, 20_000], ids=["small path", "large path"])
-def test_float32_on_cuda_matches_float64_on_cpu(n):
+@pytest.mark.parametrize("n, large", [(7, False), (20_000, False), (20_000, True)],
+                         ids=["small path", "tables at 20,000 rows", "large path"])
+def test_float32_on_cuda_matches_float64_on_cpu(n, large, monkeypatch):
+    if large:
+        force_large_path(monkeypatch)
     g = torch.Generator().manual_seed(3)
     q = tq.random_quat(n, generator=g, dtype=torch.float64)
     R = tq.quat_to_matrix(q)

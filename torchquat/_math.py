@@ -45,6 +45,15 @@ SMALL_BATCH_ROWS = 4096
 where per-operation dispatch dominates; larger ones take elementwise paths that make fewer passes
 over memory. Both give the same results to rounding; the tests run both."""
 
+GPU_SMALL_BATCH_ROWS = 1 << 20
+"""The same bound off the CPU (on a GPU), where eager time follows the number of kernel launches
+rather than passes over memory: about 10 us of host time per operation on an H100, so a call on
+1e6 rows costs about what it costs on one. There the few-operation paths win up to much larger
+batches; each kernel sets a ``gpu_share`` of this bound at its crossover measured on an H100
+(``docs/bench_profile.md``, "On a GPU"): 1/4 where the tables' wider rows cost more from about
+1e6 rows (Euler -> quat, Euler -> matrix, matrix -> quat's looked-up Jacobians), 4 where they
+still won at 4e6 rows."""
+
 PLANAR_ROWS = 32768
 """Eager CPU batches from ``share *`` this many rows work on contiguous columns
 (``torchquat._planes``), each kernel with the share of its measured crossover (forward+backward):
@@ -68,17 +77,18 @@ def matmul_rounds(x: Tensor) -> bool:
         torch.backends.cuda.matmul.allow_tf32 or torch.get_float32_matmul_precision() != "highest")
 
 
-def is_small(x: Tensor, row_numel: int, share: float = 1.0) -> bool:
-    """Whether ``x`` (rows of ``row_numel`` numbers) is a small batch (a shape test, not data):
-    at most ``share * SMALL_BATCH_ROWS`` rows (kernels whose table path costs more per row set
-    a smaller share, where their measured crossover is).
+def is_small(x: Tensor, row_numel: int, share: float = 1.0, gpu_share: float = 1.0) -> bool:
+    """Whether ``x`` (rows of ``row_numel`` numbers) is a small batch (a shape and device test, not
+    data): at most ``share * SMALL_BATCH_ROWS`` rows on the CPU, ``gpu_share * GPU_SMALL_BATCH_ROWS``
+    elsewhere (kernels whose table path costs more per row set smaller shares, at their measured
+    crossovers).
 
     Inside a ``torch.compile`` trace the answer is no: inductor fuses elementwise code into one
     loop, and a matmul would split it. Where a matmul would round (:func:`matmul_rounds`) it is no
     too: the large-batch paths are written without matmuls.
     """
-    return (x.numel() <= SMALL_BATCH_ROWS * share * row_numel and not torch.compiler.is_compiling()
-            and not matmul_rounds(x))
+    rows = SMALL_BATCH_ROWS * share if x.device.type == "cpu" else GPU_SMALL_BATCH_ROWS * gpu_share
+    return x.numel() <= rows * row_numel and not torch.compiler.is_compiling() and not matmul_rounds(x)
 
 
 def matmul3(a: Tensor, b: Tensor) -> Tensor:

@@ -156,7 +156,7 @@ _QUAT_TO_AXIS_ANGLE = jacobian_rule(_quat_to_axis_angle_small, _quat_to_axis_ang
 def quat_to_axis_angle_unchecked(q: Tensor) -> Tensor:
     if torch.compiler.is_compiling():
         return _quat_to_axis_angle_columnwise(q)
-    if is_small(q, 4, share=0.125):  # closed form vs autograd: crossover measured near 700 rows
+    if is_small(q, 4, share=0.125, gpu_share=4):  # closed form vs autograd: crossover measured near 700 rows
         return closed_form.apply(_QUAT_TO_AXIS_ANGLE, q)
     if not is_small(q, 4, share=_COLUMNWISE_SHARE):
         return closed_form.apply(_QUAT_TO_AXIS_ANGLE_COLUMNWISE, q)

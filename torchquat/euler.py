@@ -246,7 +246,7 @@ _EULER_TO_QUAT_COLUMNWISE = Rule(_euler_to_quat_columnwise, _euler_to_quat_colum
 def euler_to_quat_unchecked(angles: Tensor, convention: EulerConvention) -> Tensor:
     # column by column from 513 rows, with its closed-form backward (forward+backward: 1.6x faster
     # than the tables at 1,024 rows, even at 512; the tables' forward leads by 10% up to ~1,500)
-    if not is_small(angles, 3, share=0.125):
+    if not is_small(angles, 3, share=0.125, gpu_share=0.25):
         if torch.compiler.is_compiling():
             return _euler_to_quat_columnwise(angles, convention)
         return closed_form.apply(_EULER_TO_QUAT_COLUMNWISE, angles, convention=convention)
@@ -303,9 +303,9 @@ _EULER_TO_MATRIX = jacobian_rule(_euler_to_matrix_small, _euler_to_matrix_with_j
 
 @kernel
 def euler_to_matrix_unchecked(angles: Tensor, convention: EulerConvention) -> Tensor:
-    if is_small(angles, 3, share=1 / 16):  # the 4-slot, 27-column outer product: pays up to ~250 rows
+    if is_small(angles, 3, share=1 / 16, gpu_share=0.25):  # the 4-slot, 27-column outer product: pays up to ~250 rows
         return closed_form.apply(_EULER_TO_MATRIX, angles, convention=convention)
-    if is_small(angles, 3, share=0.25):
+    if is_small(angles, 3, share=0.25, gpu_share=0.25):
         return _euler_to_matrix_small(angles, convention)
     # from 1,025 rows: the 27-column outer product costs more memory passes than the quaternion
     # (forward 0.8x and 0.27x of the outer product's time, forward+backward 0.66x and 0.49x, at 2,048 and 4,096 rows)
@@ -390,7 +390,7 @@ def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Option
 
 @kernel
 def matrix_to_euler_unchecked(R: Tensor, convention: EulerConvention, eps: float) -> Tensor:
-    if not is_small(R, 9, share=0.25):  # crossover measured near 1000 rows (with the closed-form backward)
+    if not is_small(R, 9, share=0.25, gpu_share=4):  # crossover measured near 1000 rows (with the closed-form backward)
         if torch.compiler.is_compiling():
             return matrix_to_euler_columnwise(R, convention, eps)
         return closed_form.apply(MATRIX_TO_EULER_COLUMNWISE, R, convention=convention, eps=eps)

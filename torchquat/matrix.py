@@ -84,7 +84,7 @@ _QUAT_TO_MATRIX_PLANAR = Rule(_quat_to_matrix_planar, _quat_to_matrix_planar_par
 @kernel
 def quat_to_matrix_unchecked(q: Tensor) -> Tensor:
     """Homogeneous form divided by ``|q|^2``: the rotation of ``q / |q|``, NaN for ``q = 0``."""
-    if is_small(q, 4):
+    if is_small(q, 4, gpu_share=4):
         # Few rotations: cost is per-operation dispatch, so use 4 ops: the outer product, one
         # small matmul against the constant table, a division (NOTES: 5-10 us an op at N = 1).
         h = contract(outer_product(q, q), "homogeneous", _HOMOGENEOUS)
@@ -190,7 +190,7 @@ def matrix_to_quat_unchecked(R: Tensor) -> Tensor:
     """
     if torch.compiler.is_compiling() or planar(R, 9, _SHEPPERD_PLANAR_SHARE):
         return _shepperd_columnwise(R)
-    if is_small(R, 9, share=1 / 64):  # the looked-up (..., 9, 4) Jacobians pay up to ~100 rows
+    if is_small(R, 9, share=1 / 64, gpu_share=0.25):  # the looked-up (..., 9, 4) Jacobians pay up to ~100 rows
         return closed_form.apply(_MATRIX_TO_QUAT, R)
     return _matrix_to_quat_small(R)
 

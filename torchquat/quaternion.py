@@ -79,7 +79,7 @@ _PRODUCT_COLUMNWISE = Rule(_product_columnwise, _product_columnwise_parts, _prod
 @kernel
 def hamilton_product(p: Tensor, q: Tensor) -> Tensor:
     """Unchecked Hamilton product of prepared tensors (used internally)."""
-    if is_small(p, 4) and is_small(q, 4):
+    if is_small(p, 4, gpu_share=4) and is_small(q, 4, gpu_share=4):
         return contract(outer_product(p, q), "product", _PRODUCT)
     if torch.compiler.is_compiling():
         return _product_columnwise(p, q)
