@@ -181,10 +181,10 @@ def _axis_angle_to_quat_columnwise_parts(v: Tensor, for_autograd: bool = False):
         x = torch.sqrt(torch.where(small, 1.0, x2))
         cos_half = torch.where(small, 1.0 - 0.5 * x2, torch.cos(x))
         sinc = torch.where(small, 1.0 - x2 / 6.0, torch.sin(x) / x)
-    else:
-        x = torch.sqrt(x2)
+    else:  # (x at least the smallest normal: sin(x) / x is 1 there, and 0 / 0 at x = 0 is avoided)
+        x = torch.sqrt(x2).clamp_min_(torch.finfo(v.dtype).tiny)
         cos_half = torch.cos(x)
-        sinc = torch.where(x2 < torch.finfo(v.dtype).eps ** 2, 1.0, torch.sin(x) / x)
+        sinc = torch.sin(x) / x
     sign = torch.copysign(constant("one", 1.0, cos_half), cos_half)  # (an eager where on a random sign mispredicts)
     s = sinc * sign
     buffer = plane_buffer(4, h)
@@ -204,7 +204,9 @@ def _axis_angle_to_quat_columnwise_backward(grad: Tensor, inputs, saved):
     *h, x2, w, s = saved
     g_w, *g_u = columns(grad, HALF_IDENTITY[4], "half4")  # (dh = dv / 2, in the transpose)
     small = x2 < torch.finfo(x2.dtype).eps ** 0.5
-    k = torch.where(small, x2 * (1.0 / 30.0) - 1.0 / 3.0, (w - s) / torch.where(small, 1.0, x2))
+    # (nothing differentiates this backward, so the dropped branch's 0 / 0 at x = 0 is harmless)
+    series = torch.addcmul(constant("minus_third", -1.0 / 3.0, x2), x2, constant("thirtieth", 1.0 / 30.0, x2))
+    k = torch.where(small, series, (w - s) / x2)
     dot = g_u[0] * h[0]
     for g, c in zip(g_u[1:], h[1:]):
         dot = torch.addcmul(dot, g, c)
