@@ -139,3 +139,37 @@ def test_rounds_keep_each_cells_fastest_median_and_skip_large_batches(monkeypatc
     assert bench.main(args) == 0
     mine = {r["n"]: r["median_s"] for r in json.loads(path.read_text())["results"] if r["impl"] == "torchquat"}
     assert mine == {1: 1.0, 20000: 3.0}  # N = 1: best of 3 rounds; N = 20,000: one round
+
+
+@pytest.mark.parametrize("how, status", [("SIGINT", 130), ("SIGTERM", 143)])
+def test_a_stopped_run_reports_the_finished_measurements(how, status, monkeypatch, tmp_path, capsys):
+    # Ctrl-C, or the SIGTERM of `timeout` or a job scheduler, during the third (N, op): the table and
+    # the JSON keep the first two and drop the one in progress
+    import os
+    import signal
+    import threading
+
+    if how == "SIGTERM" and threading.current_thread() is not threading.main_thread():
+        pytest.skip("signal handlers are installed from the main thread only")
+    real_measure, calls, handler = timing.measure, [], signal.getsignal(signal.SIGTERM)
+
+    def measure(fn, min_run_time, threads, min_runs=3):
+        calls.append(fn)
+        if len(calls) == 11:  # 2 (N, op) x (2 passes + 3 floor probes) = 10 calls finished
+            if how == "SIGINT":
+                raise KeyboardInterrupt
+            os.kill(os.getpid(), signal.SIGTERM)
+        return real_measure(fn, min_run_time, threads, min_runs)
+
+    monkeypatch.setattr(timing, "measure", measure)
+    path = tmp_path / "bench.json"
+    args = ["--n", "1", "--ops", "quat_to_matrix", "quat_multiply", "quat_rotate", "matrix_to_quat", "--peers", "none",
+            "--min-run-time", "0.001", "--rounds", "1", "--allocator", "none", "--json", str(path)]
+    assert bench.main(args) == status
+    out = capsys.readouterr().out
+    assert f"Stopped by {how} after 2 of 4 (N, op) measurements" in out
+    assert "| quat -> matrix | fwd+bwd |" in out and "| quat product | fwd |" in out and "rotate vectors" not in out.split("Calls timed")[0]
+    data = json.loads(path.read_text())
+    assert data["meta"]["stopped_by"] == how and (data["meta"]["finished"], data["meta"]["planned"]) == (2, 4)
+    assert {r["op"] for r in data["results"]} == {"quat_to_matrix", "quat_multiply"}
+    assert signal.getsignal(signal.SIGTERM) is handler and len(calls) == 11  # the handler is put back

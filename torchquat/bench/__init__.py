@@ -14,9 +14,12 @@ Usage::
 """
 
 import argparse
+import contextlib
 import os
 import platform
+import signal
 import sys
+import threading
 import time
 from typing import List, Optional
 
@@ -91,9 +94,96 @@ def _callable(impl: _ops.Impl, inputs, backward: bool, seed: int):
     return step
 
 
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """Inside it, SIGTERM (what ``timeout`` and job schedulers send) raises ``KeyboardInterrupt``
+    as Ctrl-C does, so that a stopped run still reports what it measured."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt("SIGTERM")
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def _progress(text: str, enabled: bool) -> None:
     if enabled:
         print(text, file=sys.stderr, flush=True)
+
+
+class _Interrupted(Exception):
+    """Ctrl-C or SIGTERM during :func:`_measure_all`: how far it got."""
+
+    def __init__(self, signal_name: str, done: int, current):
+        super().__init__(signal_name)
+        self.signal, self.done, self.current = signal_name, done, current
+
+
+def _measure_all(ns, selected, results, dtype, seed, device, compiled, active, agrees, passes, rounds,
+                 min_run_time, threads, verbose) -> int:
+    """Time every (N, op) into ``results``; returns how many (N, op) were finished. Ctrl-C (or
+    SIGTERM, inside :func:`_sigterm_as_interrupt`) raises :class:`_Interrupted` instead."""
+    total, done, current = len(ns) * len(selected), 0, None
+    try:
+        for n in ns:
+            inputs = _ops.make_inputs(n, dtype, seed, device)
+            for op in selected:
+                done += 1
+                current = (n, op.name)
+                _progress(f"[{done}/{total}] N={n} {op.name}", verbose)
+                tq_impl = _ops.torchquat_impl(op)
+                impls = [(_report.TORCHQUAT, tq_impl, None)]
+                if compiled:
+                    impls.append((_report.COMPILED, _ops.torchquat_impl(op, compiled=True), None))
+                impls += [(p.name, p.impls[op.name], agrees.get((op.name, p.name))) for p in active
+                          if op.name in p.impls]
+                for pss in passes:
+                    cells = []  # (record, callable)
+                    for name, impl, ok in impls:
+                        if pss == "fwd+bwd" and not impl.backward:
+                            continue
+                        rec = {"op": op.name, "n": n, "pass": pss, "impl": name, "call": impl.call,
+                               "agrees": ok, "median_s": None, "iqr_s": None, "runs": 0, "error": None}
+                        try:
+                            fn = _callable(impl, inputs, pss == "fwd+bwd", seed)
+                            if name == _report.COMPILED:
+                                fn(), fn()  # compile (excluded from the timing)
+                        except Exception as exc:
+                            rec["error"], fn = f"{type(exc).__name__}: {exc}"[:300], None
+                        cells.append((rec, fn))
+                        results.append(rec)
+                    for _ in range(rounds if n <= 10_000 else 1):
+                        for rec, fn in cells:
+                            if fn is None:
+                                continue
+                            try:
+                                t = _timing.measure(fn, min_run_time, threads)
+                            except Exception as exc:
+                                rec["error"] = f"{type(exc).__name__}: {exc}"[:300]
+                                continue
+                            if rec["median_s"] is None or t.median < rec["median_s"]:
+                                rec.update(median_s=t.median, iqr_s=t.iqr, runs=t.runs, calls=t.calls)
+                    del cells
+                out = op.tq_fn(*(inputs[k] for k in op.args))
+                in_width = sum(inputs[k][0].numel() for k in op.args)
+                # the cheapest of three fresh preallocations: a large copy's time varies run to run
+                # (where its pages land), and the floor is the cheapest pass
+                t = min((_timing.measure(_timing.floor_fn(n, in_width, tuple(out.shape[1:]), dtype, device), min_run_time, threads)
+                         for _ in range(3)), key=lambda timing: timing.median)
+                results.append({"op": op.name, "n": n, "pass": "fwd", "impl": _report.FLOOR, "agrees": None,
+                                "call": "floor", "median_s": t.median, "iqr_s": t.iqr, "runs": t.runs, "error": None})
+                del out
+            del inputs
+    except KeyboardInterrupt as exc:
+        raise _Interrupted("SIGTERM" if str(exc) == "SIGTERM" else "SIGINT", done - 1 if current else 0,
+                           current) from None
+    return done
 
 
 def run(args: argparse.Namespace) -> int:
@@ -164,56 +254,16 @@ def run(args: argparse.Namespace) -> int:
 
     results = []
     total = len(ns) * len(selected)
-    done = 0
+    stopped = None  # the signal's name, if the run was interrupted
     started = time.perf_counter()
-    for n in ns:
-        inputs = _ops.make_inputs(n, dtype, seed, device)
-        for op in selected:
-            done += 1
-            _progress(f"[{done}/{total}] N={n} {op.name}", verbose)
-            tq_impl = _ops.torchquat_impl(op)
-            impls = [(_report.TORCHQUAT, tq_impl, None)]
-            if compiled:
-                impls.append((_report.COMPILED, _ops.torchquat_impl(op, compiled=True), None))
-            impls += [(p.name, p.impls[op.name], agrees.get((op.name, p.name))) for p in active
-                      if op.name in p.impls]
-            for pss in passes:
-                cells = []  # (record, callable)
-                for name, impl, ok in impls:
-                    if pss == "fwd+bwd" and not impl.backward:
-                        continue
-                    rec = {"op": op.name, "n": n, "pass": pss, "impl": name, "call": impl.call,
-                           "agrees": ok, "median_s": None, "iqr_s": None, "runs": 0, "error": None}
-                    try:
-                        fn = _callable(impl, inputs, pss == "fwd+bwd", seed)
-                        if name == _report.COMPILED:
-                            fn(), fn()  # compile (excluded from the timing)
-                    except Exception as exc:
-                        rec["error"], fn = f"{type(exc).__name__}: {exc}"[:300], None
-                    cells.append((rec, fn))
-                    results.append(rec)
-                for _ in range(rounds if n <= 10_000 else 1):
-                    for rec, fn in cells:
-                        if fn is None:
-                            continue
-                        try:
-                            t = _timing.measure(fn, min_run_time, threads)
-                        except Exception as exc:
-                            rec["error"] = f"{type(exc).__name__}: {exc}"[:300]
-                            continue
-                        if rec["median_s"] is None or t.median < rec["median_s"]:
-                            rec.update(median_s=t.median, iqr_s=t.iqr, runs=t.runs, calls=t.calls)
-                del cells
-            out = op.tq_fn(*(inputs[k] for k in op.args))
-            in_width = sum(inputs[k][0].numel() for k in op.args)
-            # the cheapest of three fresh preallocations: a large copy's time varies run to run
-            # (where its pages land), and the floor is the cheapest pass
-            t = min((_timing.measure(_timing.floor_fn(n, in_width, tuple(out.shape[1:]), dtype, device), min_run_time, threads)
-                     for _ in range(3)), key=lambda timing: timing.median)
-            results.append({"op": op.name, "n": n, "pass": "fwd", "impl": _report.FLOOR, "agrees": None,
-                            "call": "floor", "median_s": t.median, "iqr_s": t.iqr, "runs": t.runs, "error": None})
-            del out
-        del inputs
+    with _sigterm_as_interrupt():
+        try:
+            done = _measure_all(ns, selected, results, dtype, seed, device, compiled, active, agrees, passes,
+                                rounds, min_run_time, threads, verbose)
+        except _Interrupted as exc:
+            done, stopped = exc.done, exc.signal
+            # the table keeps every finished (N, op); the one in progress is dropped
+            results[:] = [r for r in results if (r["n"], r["op"]) != exc.current]
     elapsed = time.perf_counter() - started
 
     import torchquat
@@ -230,6 +280,9 @@ def run(args: argparse.Namespace) -> int:
         allocator,
         "Peers: " + (", ".join(f"{p.name} {p.version} (import {p.import_s:.2f} s)" for p in active) or "none"),
     ]
+    if stopped:
+        header.append(f"Stopped by {stopped} after {done} of {total} (N, op) measurements: the table holds "
+                      "the finished ones.")
     for p in peers:
         if p.error is not None:
             header.append(f"Skipped {p.name}: {p.error.splitlines()[0]} -- install the peers with: {INSTALL_HINT}")
@@ -272,9 +325,10 @@ def run(args: argparse.Namespace) -> int:
                 "threads": threads, "device": str(device), "ns": ns, "compiled": compiled, "min_run_time": min_run_time, "allocator": allocator,
                 "floor_definition": _timing.FLOOR_DEFINITION, "machine": platform.platform(),
                 "cpus": os.cpu_count(), "python": platform.python_version(), "elapsed_s": elapsed,
-                "peers": {p.name: {"version": p.version, "import_s": p.import_s, "error": p.error} for p in peers}}
+                "peers": {p.name: {"version": p.version, "import_s": p.import_s, "error": p.error} for p in peers},
+                "stopped_by": stopped, "finished": done, "planned": total}
         _report.write_json(json_path, meta, results, torch_peers, legend, agreement)
-    return 0
+    return {None: 0, "SIGINT": 130, "SIGTERM": 143}[stopped]
 
 
 def main(argv: Optional[List[str]] = None) -> int:
