@@ -9,7 +9,8 @@ import torch
 import torchquat as tq
 import torchquat._math as tqmath
 import torchquat._planes as _planes
-from function_table import ALL, BINARY, DispatchRecorder, assert_paths_agree, singular_quats
+from function_table import ALL, BINARY, DispatchRecorder, assert_paths_agree, quats, singular_quats
+from rotation_samples import lock_angles
 
 PATH_DEPENDENT = ["quat_to_matrix", "quat_multiply", "quat_rotate", "matrix_to_quat", "axis_angle_to_quat",
                   "quat_to_axis_angle", "quat_geodesic_distance", "matrix_geodesic_distance", "rot6d_to_matrix", "euler_to_quat[ZYZ]", "euler_to_quat[xzy]"] + [
@@ -69,6 +70,26 @@ def test_small_and_large_batch_paths_agree(name, large_batches, monkeypatch):
         g_large = torch.autograd.grad(large.sum(), inputs)
         monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 4096)
         assert_paths_agree(name, make is singular, small, large, g_small, g_large, atol=1e-14, grad_atol=1e-12)
+
+
+@pytest.mark.parametrize("dtype, tiny", [(torch.float64, 1e-150), (torch.float32, 1e-12)], ids=["float64", "float32"])
+@pytest.mark.parametrize("convention", ["ZYX", "xyz", "ZXZ", "yxy"])
+def test_large_batches_are_scale_invariant_and_nan_for_the_zero_quaternion(convention, dtype, tiny, large_batches):
+    # The forms are quadratic and 2h squares them again: unscaled, tiny quaternions underflowed
+    # to a false gimbal lock. q = 0 (all forms 0) would read as a plausible (0, 0, 0).
+    # (generic quaternions, and some at lock or 1e-4 from it: not on the lock test's threshold, where
+    # any rounding may flip the decision)
+    angles, offset = lock_angles(convention)
+    at_lock = tq.euler_to_quat(angles[(offset == 0) | (offset >= 1e-4)], convention)
+    q = torch.cat([quats(32), at_lock]).to(dtype)
+    batch = torch.cat([torch.zeros(2, 4, dtype=dtype), q, tiny * q, 3.0 * q])
+    reference = tq.euler_to_matrix(tq.quat_to_euler(q, convention), convention).double()
+    large_batches()
+    angles = tq.quat_to_euler(batch, convention)
+    assert angles[:2].isnan().all() and not angles[2:].isnan().any()
+    for part in angles[2:].split(len(q)):
+        R = tq.euler_to_matrix(part, convention).double()
+        assert (R - reference).abs().max() < (1e-13 if dtype == torch.float64 else 1e-5)
 
 
 @pytest.mark.parametrize("name", PATH_DEPENDENT)

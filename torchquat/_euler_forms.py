@@ -164,17 +164,25 @@ def _dense_tables(name: str):
 DENSE = {name: _dense_tables(name) for name in EULER_CONVENTIONS}
 
 
-def angles_parts(forms, conv: EulerConvention, eps: float, abcd2, nan_where: Optional[Tensor] = None,
-                 out: Optional[Tensor] = None):
+def angles_parts(forms, conv: EulerConvention, eps: float, abcd2, out: Optional[Tensor] = None):
     """The same angles as ``torchquat._euler_small``, written column by column with the tables'
     numbers as literals: for large batches (a handful of passes over 1-D columns instead of
     strided pair tensors) and for ``torch.compile``, which fuses it into one vectorised loop.
 
     ``forms``: the :data:`ANGLE_FORMS` (their scale is free), ``abcd2``: ``|abcd|^2`` on the same
-    scale (a tensor, or a number). Rows where ``nan_where`` holds come out as NaN. ``out``: an
-    optional ``torchquat._planes.plane_buffer`` of 3 rows for the angles. Returns the three angles
-    and what :func:`forms_gradient` needs."""
+    scale (a number, or a quaternion's ``|abcd|^2``, a tensor). ``out``: an optional
+    ``torchquat._planes.plane_buffer`` of 3 rows for the angles. Returns the three angles and what
+    :func:`forms_gradient` needs.
+
+    A quaternion's forms are of order ``|q|^2`` and ``2h`` squares them again, which underflows
+    for ``|q|`` below about 1e-77 (float64) or 3e-10 (float32) and would read as gimbal lock; so
+    t1's pair and ``Z`` are first divided by ``|abcd|^2`` (three passes, the angles unchanged).
+    That also makes ``q = 0``, whose forms are all 0 (a plausible (0, 0, 0)), NaN throughout."""
     y1, x1, y_zero, x_zero, y_pi, x_pi, z = forms
+    scale = None
+    if isinstance(abcd2, Tensor):
+        scale, abcd2 = abcd2, 1.0
+        y1, x1, z = y1 / scale, x1 / scale, z / scale
     two_h = safe_sqrt(y1 * y1 + x1 * x1)
     near_zero = z >= 0 if conv.symmetric else z <= 0  # |ab| >= |cd|: the small path's test
     tb = forms_tables(conv.name)[3]
@@ -195,8 +203,7 @@ def angles_parts(forms, conv: EulerConvention, eps: float, abcd2, nan_where: Opt
         step = weight * (-2.0 * tb) + tb
     locked = two_h <= abcd2 * math.sin(eps)  # sin(middle) <= sin(eps), as the small path
     y1_used, x1_used = torch.where(locked, 0.0, y1), torch.where(locked, 1.0, x1)  # t1 = 0 at lock
-    # (out: the angles' last passes write into a plane buffer; with nan_where those are its wheres)
-    final = (lambda i: None) if out is None or nan_where is not None else out.__getitem__
+    final = (lambda i: None) if out is None else out.__getitem__  # (the last passes write into the buffer)
     t1 = torch.atan2(y1_used, x1_used, out=final(2) if conv.intrinsic else None)
     middle = torch.atan2(two_h, z, out=final(1)) if conv.symmetric else torch.atan2(z, two_h, out=final(1))
     y_double, x_double = pick(y_zero, y_pi), pick(x_zero, x_pi)
@@ -210,16 +217,12 @@ def angles_parts(forms, conv: EulerConvention, eps: float, abcd2, nan_where: Opt
         # lock pair (2ab, a^2 - b^2) or (-2cd, c^2 - d^2) is the double angle's up to sign: -step D
         zero = constant("zero", 0.0, t3)
         angles = (torch.where(locked, -step * t3, t1, out=final(0)), middle, torch.where(locked, zero, t3, out=final(2)))
-    if nan_where is not None:
-        nan = constant("nan", math.nan, t3)
-        angles = [torch.where(nan_where, nan, a, out=None if out is None else out[i]) for i, a in enumerate(angles)]
-    return angles, (y1, x1, y1_used, x1_used, y_double, x_double, two_h, z, locked, weight, step)
+    return angles, (y1, x1, y1_used, x1_used, y_double, x_double, two_h, z, locked, weight, step, scale)
 
 
-def angles_columnwise(forms, conv: EulerConvention, eps: float, abcd2, nan_where: Optional[Tensor] = None,
-                      share: float = 1.0) -> Tensor:
+def angles_columnwise(forms, conv: EulerConvention, eps: float, abcd2, share: float = 1.0) -> Tensor:
     """The angles of :func:`angles_parts` side by side; ``share``: as for ``torchquat._planes.rows``."""
-    return rows(angles_parts(forms, conv, eps, abcd2, nan_where)[0], share=share)
+    return rows(angles_parts(forms, conv, eps, abcd2)[0], share=share)
 
 
 def forms_gradient(grad, saved, conv: EulerConvention, out: Optional[Tensor] = None):
@@ -228,7 +231,7 @@ def forms_gradient(grad, saved, conv: EulerConvention, out: Optional[Tensor] = N
     backward through the forward takes about 60. t1 is a constant at lock; the wrap into
     ``[-pi, pi]`` has derivative 1; a pick passes the gradient to the form it took (weight 0 or 1).
     ``out``: an optional ``torchquat._planes.plane_buffer`` of 7 rows to write them into."""
-    y1, x1, y1_used, x1_used, y_double, x_double, two_h, z, locked, weight, step = saved
+    y1, x1, y1_used, x1_used, y_double, x_double, two_h, z, locked, weight, step, scale = saved
     g_first, g_middle, g_third = grad
     zero = constant("zero", 0.0, g_first)
     if conv.intrinsic:  # (t3, middle, t1), t3 = D + step t1
@@ -237,6 +240,8 @@ def forms_gradient(grad, saved, conv: EulerConvention, out: Optional[Tensor] = N
     else:  # (t1, or -step t3 at lock; middle; t3, or 0 at lock)
         g_double = torch.where(locked, -step * g_first, g_third)
         g_t1 = torch.addcmul(g_first, step, g_double)  # (0 at lock: step^2 = 1)
+    if scale is not None:  # (t1's pair and Z were divided by |abcd|^2: so are their gradients)
+        g_t1, g_middle = g_t1 / scale, g_middle / scale
     r1 = g_t1 / torch.addcmul(x1_used * x1_used, y1_used, y1_used)
     r_double = g_double / torch.addcmul(x_double * x_double, y_double, y_double)
     r_middle = g_middle / torch.addcmul(z * z, two_h, two_h)
@@ -268,7 +273,7 @@ def _quat_to_euler_planar_parts(q: Tensor, convention: EulerConvention, eps: flo
     *forms, abcd2 = combinations(products if buffer is None else buffer, DENSE[convention.name][0],
                                  "euler_q_" + convention.name, share=share)
     buffer = plane_buffer(3, forms, share)
-    angles, saved = angles_parts(forms, convention, eps, abcd2, nan_where=abcd2 == 0, out=buffer)
+    angles, saved = angles_parts(forms, convention, eps, abcd2, out=buffer)
     return rows(angles if buffer is None else buffer, share=share), (*components, *saved)
 
 

@@ -7,13 +7,13 @@ from torch import Tensor
 
 
 def safe_sqrt(x2: Tensor) -> Tensor:
-    """``sqrt(x2)`` whose gradient is 0 (not NaN or inf) where ``x2 == 0``.
+    """``sqrt(x2)`` whose gradient is 0 (not NaN or inf) where ``x2 == 0``; NaN stays NaN.
 
     The kink of a norm at zero has no derivative; a zero subgradient keeps training finite.
     The discarded branch is fed 1 so autograd never evaluates ``1 / sqrt(0)`` (kornia's pattern).
     """
-    positive = x2 > 0
-    return torch.where(positive, torch.sqrt(torch.where(positive, x2, 1.0)), 0.0)
+    zero = x2 == 0
+    return torch.where(zero, 0.0, torch.sqrt(torch.where(zero, 1.0, x2)))
 
 
 def sum_of_squares(columns) -> Tensor:

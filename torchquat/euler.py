@@ -348,13 +348,13 @@ def quat_to_euler_unchecked(q: Tensor, convention: EulerConvention, eps: float) 
         abcd = [combine(components, terms) for terms in abcd_terms]
         products = [abcd[u] * abcd[v] for u, v in PAIRS]
         *forms, abcd2 = [combine(products, terms) for terms in pair_terms]
-        # Every atan2 pair and the lock test are scale-invariant; only q = 0 (all forms 0) must
-        # come out as NaN, not a plausible (0, 0, 0). Eager: a where on each angle (7 fewer
-        # passes); compiled: dividing by |abcd|^2 fuses for free, and a where does not.
+        # The angles are scale-invariant, but squares of the forms underflow for tiny q, and q = 0
+        # (all forms 0) must come out as NaN: the forms divided by |abcd|^2. Eager: only t1's pair
+        # and Z, in angles_parts; compiled: every form (it fuses for free).
         if torch.compiler.is_compiling():
             inverse = 1.0 / abcd2
             return angles_columnwise([form * inverse for form in forms], convention, eps, 1.0)
-        return angles_columnwise(forms, convention, eps, abcd2, nan_where=abcd2 == 0)
+        return angles_columnwise(forms, convention, eps, abcd2)
     return euler_angles(q, convention, eps, is_matrix=False)
 
 
