@@ -150,7 +150,10 @@ def quat_geodesic_distance(q1: Tensor, q2: Tensor) -> Tensor:
     gradient is finite everywhere (0 at distance 0, the kink of the distance).
 
     Args:
-        q1: quaternions ``(w, x, y, z)``, any non-zero norm.
+        q1: quaternions ``(w, x, y, z)``, any non-zero norm; on the large-batch eager path, norms
+            above about 3e-10 (float32) or 1e-77 (float64), where the squared minors would
+            underflow (below, the distance loses precision, and is NaN below about 6e-12 in
+            float32). Normalise tinier inputs first.
         q2: quaternions; batch dims broadcast with ``q1``'s.
 
     Returns:
