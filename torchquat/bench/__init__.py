@@ -117,75 +117,6 @@ def _progress(text: str, enabled: bool) -> None:
         print(text, file=sys.stderr, flush=True)
 
 
-class _Interrupted(Exception):
-    """Ctrl-C or SIGTERM during :func:`_measure_all`: how far it got."""
-
-    def __init__(self, signal_name: str, done: int, current):
-        super().__init__(signal_name)
-        self.signal, self.done, self.current = signal_name, done, current
-
-
-def _measure_all(ns, selected, results, dtype, seed, device, compiled, active, agrees, passes, rounds,
-                 min_run_time, threads, verbose) -> int:
-    """Time every (N, op) into ``results``; returns how many (N, op) were finished. Ctrl-C (or
-    SIGTERM, inside :func:`_sigterm_as_interrupt`) raises :class:`_Interrupted` instead."""
-    total, done, current = len(ns) * len(selected), 0, None
-    try:
-        for n in ns:
-            inputs = _ops.make_inputs(n, dtype, seed, device)
-            for op in selected:
-                done += 1
-                current = (n, op.name)
-                _progress(f"[{done}/{total}] N={n} {op.name}", verbose)
-                tq_impl = _ops.torchquat_impl(op)
-                impls = [(_report.TORCHQUAT, tq_impl, None)]
-                if compiled:
-                    impls.append((_report.COMPILED, _ops.torchquat_impl(op, compiled=True), None))
-                impls += [(p.name, p.impls[op.name], agrees.get((op.name, p.name))) for p in active
-                          if op.name in p.impls]
-                for pss in passes:
-                    cells = []  # (record, callable)
-                    for name, impl, ok in impls:
-                        if pss == "fwd+bwd" and not impl.backward:
-                            continue
-                        rec = {"op": op.name, "n": n, "pass": pss, "impl": name, "call": impl.call,
-                               "agrees": ok, "median_s": None, "iqr_s": None, "runs": 0, "error": None}
-                        try:
-                            fn = _callable(impl, inputs, pss == "fwd+bwd", seed)
-                            if name == _report.COMPILED:
-                                fn(), fn()  # compile (excluded from the timing)
-                        except Exception as exc:
-                            rec["error"], fn = f"{type(exc).__name__}: {exc}"[:300], None
-                        cells.append((rec, fn))
-                        results.append(rec)
-                    for _ in range(rounds if n <= 10_000 else 1):
-                        for rec, fn in cells:
-                            if fn is None:
-                                continue
-                            try:
-                                t = _timing.measure(fn, min_run_time, threads)
-                            except Exception as exc:
-                                rec["error"] = f"{type(exc).__name__}: {exc}"[:300]
-                                continue
-                            if rec["median_s"] is None or t.median < rec["median_s"]:
-                                rec.update(median_s=t.median, iqr_s=t.iqr, runs=t.runs, calls=t.calls)
-                    del cells
-                out = op.tq_fn(*(inputs[k] for k in op.args))
-                in_width = sum(inputs[k][0].numel() for k in op.args)
-                # the cheapest of three fresh preallocations: a large copy's time varies run to run
-                # (where its pages land), and the floor is the cheapest pass
-                t = min((_timing.measure(_timing.floor_fn(n, in_width, tuple(out.shape[1:]), dtype, device), min_run_time, threads)
-                         for _ in range(3)), key=lambda timing: timing.median)
-                results.append({"op": op.name, "n": n, "pass": "fwd", "impl": _report.FLOOR, "agrees": None,
-                                "call": "floor", "median_s": t.median, "iqr_s": t.iqr, "runs": t.runs, "error": None})
-                del out
-            del inputs
-    except KeyboardInterrupt as exc:
-        raise _Interrupted("SIGTERM" if str(exc) == "SIGTERM" else "SIGINT", done - 1 if current else 0,
-                           current) from None
-    return done
-
-
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark described by ``args`` (from :func:`add_arguments`); return the exit status."""
     ns: List[int] = list(getattr(args, "n", None) or [1, 1000, 1_000_000])
@@ -254,16 +185,65 @@ def run(args: argparse.Namespace) -> int:
 
     results = []
     total = len(ns) * len(selected)
-    stopped = None  # the signal's name, if the run was interrupted
+    done, current, stopped = 0, None, None  # stopped: the signal's name, if the run was interrupted
     started = time.perf_counter()
     with _sigterm_as_interrupt():
         try:
-            done = _measure_all(ns, selected, results, dtype, seed, device, compiled, active, agrees, passes,
-                                rounds, min_run_time, threads, verbose)
-        except _Interrupted as exc:
-            done, stopped = exc.done, exc.signal
-            # the table keeps every finished (N, op); the one in progress is dropped
-            results[:] = [r for r in results if (r["n"], r["op"]) != exc.current]
+            for n in ns:
+                inputs = _ops.make_inputs(n, dtype, seed, device)
+                for op in selected:
+                    done += 1
+                    current = (n, op.name)
+                    _progress(f"[{done}/{total}] N={n} {op.name}", verbose)
+                    tq_impl = _ops.torchquat_impl(op)
+                    impls = [(_report.TORCHQUAT, tq_impl, None)]
+                    if compiled:
+                        impls.append((_report.COMPILED, _ops.torchquat_impl(op, compiled=True), None))
+                    impls += [(p.name, p.impls[op.name], agrees.get((op.name, p.name))) for p in active
+                              if op.name in p.impls]
+                    for pss in passes:
+                        cells = []  # (record, callable)
+                        for name, impl, ok in impls:
+                            if pss == "fwd+bwd" and not impl.backward:
+                                continue
+                            rec = {"op": op.name, "n": n, "pass": pss, "impl": name, "call": impl.call,
+                                   "agrees": ok, "median_s": None, "iqr_s": None, "runs": 0, "error": None}
+                            try:
+                                fn = _callable(impl, inputs, pss == "fwd+bwd", seed)
+                                if name == _report.COMPILED:
+                                    fn(), fn()  # compile (excluded from the timing)
+                            except Exception as exc:
+                                rec["error"], fn = f"{type(exc).__name__}: {exc}"[:300], None
+                            cells.append((rec, fn))
+                            results.append(rec)
+                        for _ in range(rounds if n <= 10_000 else 1):
+                            for rec, fn in cells:
+                                if fn is None:
+                                    continue
+                                try:
+                                    t = _timing.measure(fn, min_run_time, threads)
+                                except Exception as exc:
+                                    rec["error"] = f"{type(exc).__name__}: {exc}"[:300]
+                                    continue
+                                if rec["median_s"] is None or t.median < rec["median_s"]:
+                                    rec.update(median_s=t.median, iqr_s=t.iqr, runs=t.runs, calls=t.calls)
+                        del cells
+                    out = op.tq_fn(*(inputs[k] for k in op.args))
+                    in_width = sum(inputs[k][0].numel() for k in op.args)
+                    # the cheapest of three fresh preallocations: a large copy's time varies run to run
+                    # (where its pages land), and the floor is the cheapest pass
+                    t = min((_timing.measure(_timing.floor_fn(n, in_width, tuple(out.shape[1:]), dtype, device), min_run_time, threads)
+                             for _ in range(3)), key=lambda timing: timing.median)
+                    results.append({"op": op.name, "n": n, "pass": "fwd", "impl": _report.FLOOR, "agrees": None,
+                                    "call": "floor", "median_s": t.median, "iqr_s": t.iqr, "runs": t.runs, "error": None})
+                    del out
+                    current = None  # (finished)
+                del inputs
+        except KeyboardInterrupt as exc:
+            stopped = "SIGTERM" if str(exc) == "SIGTERM" else "SIGINT"
+            if current is not None:  # the table keeps every finished (N, op); the one in progress is dropped
+                done -= 1
+                results[:] = [r for r in results if (r["n"], r["op"]) != current]
     elapsed = time.perf_counter() - started
 
     import torchquat
