@@ -240,3 +240,74 @@ def test_two_input_functions_broadcast_across_ranks(name, large, layout, monkeyp
         x, y = (a[0], b) if single_first else (a, b[0])
         repeated = (a[0].expand_as(a), b) if single_first else (a, b[0].expand_as(b))
         assert torch.allclose(fn(x, y), fn(*repeated), atol=1e-14, rtol=0), (name, single_first)
+
+
+# Kernels whose large eager CPU batches run block by block when nothing is differentiated
+# (``_math.BLOCK_ROWS``): each block must take the whole batch's path and give its numbers.
+BLOCKED = ["quat_geodesic_distance", "matrix_geodesic_distance", "matrix_to_quat", "quat_to_euler[ZYX]",
+           "quat_to_euler[xzx]", "quat_rotate"]
+
+
+def _tiled(inputs, rows):
+    """The rows of ``inputs`` repeated to ``rows`` rows, each copy a little rotated (distinct rows)."""
+    out = []
+    for x in inputs:
+        reps = -(-rows // x.shape[0])
+        tiled = x.repeat((reps,) + (1,) * (x.dim() - 1))[:rows]
+        out.append(tiled + 1e-3 * torch.sin(torch.arange(rows, dtype=x.dtype)).view((rows,) + (1,) * (x.dim() - 1)))
+    return out
+
+
+def _whole_and_blocked(fn, inputs, monkeypatch):
+    """``fn(*inputs)`` without blocks and with them, and the number of operations each dispatched."""
+    results = []
+    for min_blocks in (10**12, tqmath.BLOCK_MIN_BLOCKS):
+        monkeypatch.setattr(tqmath, "BLOCK_MIN_BLOCKS", min_blocks)
+        with DispatchRecorder() as recorder:
+            out = fn(*inputs)
+        results.append((out, len(recorder.names)))
+    return results
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64], ids=["float32", "float64"])
+@pytest.mark.parametrize("name", BLOCKED)
+def test_blocked_batches_give_the_whole_batchs_numbers(name, dtype, monkeypatch):
+    # 4 blocks and a ragged end. Within an ulp: vectorised atan2 gives a last bit that depends on
+    # where a row falls in its loop (in 1 row of 1e5 to 1e6 here), as for any two batch sizes.
+    fn, generic, _ = ALL[name]
+    inputs = [x.to(dtype) for x in _tiled(generic(), tqmath.BLOCK_MIN_BLOCKS * tqmath.BLOCK_ROWS + 777)]
+    (whole, whole_ops), (blocked, blocked_ops) = _whole_and_blocked(fn, inputs, monkeypatch)
+    assert blocked_ops > 3 * whole_ops  # it did run in blocks
+    assert blocked.shape == whole.shape and blocked.dtype == whole.dtype
+    torch.testing.assert_close(blocked, whole, rtol=0, atol=4 * torch.finfo(dtype).eps)
+    assert (blocked != whole).double().mean() < 1e-4  # (another formula would differ in many rows)
+
+
+@pytest.mark.parametrize("name", BLOCKED)
+def test_a_block_takes_the_whole_batchs_path(name, monkeypatch):
+    # The block size sits above every crossover of these kernels (quat -> Euler's planar bound
+    # is the highest), so a block dispatches the operations of the large batch it comes from.
+    fn, generic, _ = ALL[name]
+    monkeypatch.setattr(tqmath, "BLOCK_MIN_BLOCKS", 10**12)
+
+    def dispatched(rows):
+        inputs = [torch.zeros((rows,) + x.shape[1:], dtype=torch.float32) for x in generic()]
+        with DispatchRecorder() as recorder:
+            fn(*inputs)
+        return recorder.names
+
+    assert dispatched(tqmath.BLOCK_ROWS) == dispatched(4 * tqmath.BLOCK_ROWS)
+
+
+def test_batches_that_cannot_be_blocked_run_whole(monkeypatch):
+    # batch dims of any rank are blocked; broadcast, strided and differentiated inputs run whole
+    fn, generic, _ = ALL["quat_geodesic_distance"]
+    rows = tqmath.BLOCK_MIN_BLOCKS * tqmath.BLOCK_ROWS
+    q1, q2 = (x.to(torch.float32) for x in _tiled(generic(), rows))
+    (whole, _), (blocked, blocked_ops) = _whole_and_blocked(fn, (q1.view(2, -1, 4), q2.view(2, -1, 4)), monkeypatch)
+    assert blocked.shape == (2, rows // 2)
+    torch.testing.assert_close(blocked, whole, rtol=0, atol=4 * torch.finfo(torch.float32).eps)
+    for case in (q1[:1], q1.T.contiguous().T, q1.clone().requires_grad_()):
+        (whole, whole_ops), (blocked, blocked_ops) = _whole_and_blocked(fn, (case, q2), monkeypatch)
+        assert blocked_ops == whole_ops and torch.equal(blocked, whole)
+        assert blocked.requires_grad == case.requires_grad

@@ -338,7 +338,7 @@ def euler_to_matrix(angles: Tensor, convention: str, degrees: bool = False) -> T
     return restore(euler_to_matrix_unchecked(_to_radians(angles, degrees), convention=conv), dtype)
 
 
-@kernel
+@kernel(blocked_row_dims=(1,))
 def quat_to_euler_unchecked(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
     if planar(q, 4, QUAT_TO_EULER_PLANAR_SHARE):
         return closed_form.apply(QUAT_TO_EULER_PLANAR, q, convention=convention, eps=eps)

@@ -178,7 +178,7 @@ def _matrix_to_quat_with_jacobian(R: Tensor):
 _MATRIX_TO_QUAT = jacobian_rule(_matrix_to_quat_small, _matrix_to_quat_with_jacobian)
 
 
-@kernel
+@kernel(blocked_row_dims=(2,))
 def matrix_to_quat_unchecked(R: Tensor) -> Tensor:
     """Shepperd's method (1978), branch-free, returning ``w >= 0``.
 

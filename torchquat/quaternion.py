@@ -217,7 +217,7 @@ def quat_rotate(q: Tensor, v: Tensor) -> Tensor:
     return restore(rotate_unchecked(q, v), dtype)
 
 
-@kernel
+@kernel(blocked_row_dims=(1, 1))
 def rotate_unchecked(q: Tensor, v: Tensor) -> Tensor:
     if torch.compiler.is_compiling() or planar(q, 4, _PLANAR_SHARE) or planar(v, 3, _PLANAR_SHARE):  # (one fused loop under compile)
         q, (a, b, c) = columns(q, share=_PLANAR_SHARE), columns(v, share=_PLANAR_SHARE)
