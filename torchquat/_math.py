@@ -65,17 +65,17 @@ more than they save."""
 
 BLOCK_ROWS = 65536
 """Eager CPU batches of at least ``BLOCK_MIN_BLOCKS`` times this many rows, with nothing to
-differentiate, run some kernels block by block (:func:`torchquat._dispatch.kernel`'s
-``blocked_row_dims``): a large-batch kernel makes 30 to 45 passes over columns of its batch, and
-a block's columns stay in the CPU's cache between passes where 1e6 rows' (4 MB each) go to memory.
-Measured at 1e6 rows, float32 (float64): the quaternion distance 1.5x (1.4x) faster, the matrix
-distance 1.4x (1.3x), matrix -> quat 1.3x (1.3x), quat -> Euler 1.13x (1.2x), rotating vectors
-1.1x; no gain below about 300,000 rows, and none for kernels whose wide outputs the blocks would
-copy once more (quat -> matrix, Euler -> matrix, 6D: 3-15% slower). Not below quat -> Euler's
-planar bound (2 x ``PLANAR_ROWS``), so a block takes the whole batch's path."""
+differentiate, run block by block (:func:`torchquat._dispatch.kernel`'s ``blocked_row_dims``):
+a large-batch kernel makes 15 to 45 passes over columns of its batch, and a block's columns
+(256 KB in float32) stay in the CPU's cache between passes where 1e6 rows' (4 MB each) go to
+memory; each block's final transposing matmul writes its slice of the output in place
+(:func:`torchquat._planes.lend`). Measured at 1e6 rows: 1.06-1.42x faster in float32,
+1.05-1.53x in float64 (``docs/bench_profile.md``, "Blocks of rows"). Not below quat -> Euler's
+planar bound (2 x ``PLANAR_ROWS``), so that a block takes the whole batch's path."""
 
-BLOCK_MIN_BLOCKS = 4
-"""Blocking starts at this many blocks (262,144 rows): see :data:`BLOCK_ROWS`."""
+BLOCK_MIN_BLOCKS = 8
+"""Blocking starts at this many blocks (524,288 rows): at 540,000 rows every kernel gains or
+breaks even (0.98-1.36x); at 270,000 some lose up to 15%."""
 
 
 HALF_IDENTITY = {k: tuple(tuple(0.5 * float(i == j) for j in range(k)) for i in range(k)) for k in (3, 4)}

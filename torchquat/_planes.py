@@ -21,6 +21,7 @@ fuses ``unbind`` and ``stack`` into its single loop, and on a GPU a float32 matr
 run in TF32 (10-bit mantissa) when the user allows it, so there the plain ops run.
 """
 
+import threading
 from typing import Optional, Sequence, Tuple
 
 import torch
@@ -45,9 +46,27 @@ def _eye(k: int, like: Tensor) -> Tensor:
     return constant(f"eye{k}", _IDENTITIES[k], like)
 
 
+_lent = threading.local()
+
+
+def lend(out: Optional[Tensor]) -> None:
+    """Lend ``out``, a contiguous ``(M, m)`` tensor, to the first of this thread's next :func:`rows`
+    on contiguous columns whose result has that shape and dtype: it is written into ``out``
+    instead of a fresh tensor (the dispatcher's blocks of rows write their output in place; see
+    ``_dispatch``), which ends the loan. ``None`` ends a loan no :func:`rows` took."""
+    _lent.out = out
+
+
 def _to_rows(planes: Tensor, table: Optional[Tensor] = None) -> Tensor:
-    """``(k, M) -> (M, k)`` (or ``planes.T @ table``), contiguous."""
-    return torch.mm(planes.t(), _eye(planes.shape[0], planes) if table is None else table)
+    """``(k, M) -> (M, k)`` (or ``planes.T @ table``), contiguous, into a lent tensor if it fits."""
+    matrix = _eye(planes.shape[0], planes) if table is None else table
+    out = getattr(_lent, "out", None)
+    if out is not None:
+        if out.shape == (planes.shape[1], matrix.shape[1]) and out.dtype == planes.dtype:
+            _lent.out = None
+        else:
+            out = None
+    return torch.mm(planes.t(), matrix, out=out)
 
 
 def _combined(cols, table, name: str, offset):

@@ -66,7 +66,7 @@ def _axis_angle_to_quat_with_jacobian(v: Tensor):
 _AXIS_ANGLE_TO_QUAT = jacobian_rule(_axis_angle_to_quat_small, _axis_angle_to_quat_with_jacobian, _axis_angle_to_quat_values)
 
 
-@kernel
+@kernel(blocked_row_dims=(1,))
 def axis_angle_to_quat_unchecked(v: Tensor) -> Tensor:
     # Up to 1,024 rows one closed-form node on the table path; above, its broadcast (..., 3, 4)
     # products cost more per row, and the columns with their own closed form are 1.4-1.9x faster
@@ -152,7 +152,7 @@ _COLUMNWISE_SHARE = 8.0
 _QUAT_TO_AXIS_ANGLE = jacobian_rule(_quat_to_axis_angle_small, _quat_to_axis_angle_with_jacobian, _quat_to_axis_angle_values)
 
 
-@kernel
+@kernel(blocked_row_dims=(1,))
 def quat_to_axis_angle_unchecked(q: Tensor) -> Tensor:
     if torch.compiler.is_compiling():
         return _quat_to_axis_angle_columnwise(q)
@@ -292,7 +292,7 @@ def quat_to_axis_angle(q: Tensor) -> Tensor:
     return restore(quat_to_axis_angle_unchecked(q), dtype)
 
 
-@kernel
+@kernel(blocked_row_dims=(1,))
 def axis_angle_to_matrix_unchecked(v: Tensor) -> Tensor:
     theta2 = (v * v).sum(-1)
     small = theta2 < small_angle_threshold(v.dtype)
@@ -316,7 +316,7 @@ def axis_angle_to_matrix_unchecked(v: Tensor) -> Tensor:
     return R.unflatten(-1, (3, 3))
 
 
-@kernel
+@kernel(blocked_row_dims=(2,))
 def matrix_to_axis_angle_unchecked(R: Tensor) -> Tensor:
     return quat_to_axis_angle_unchecked(matrix_to_quat_unchecked(R))
 

@@ -242,7 +242,7 @@ _EULER_TO_QUAT_COLUMNWISE = Rule(_euler_to_quat_columnwise, _euler_to_quat_colum
                                  _euler_to_quat_columnwise_backward)
 
 
-@kernel
+@kernel(blocked_row_dims=(1,))
 def euler_to_quat_unchecked(angles: Tensor, convention: EulerConvention) -> Tensor:
     # column by column from 513 rows, with its closed-form backward (forward+backward: 1.6x faster
     # than the tables at 1,024 rows, even at 512; the tables' forward leads by 10% up to ~1,500)
@@ -301,7 +301,7 @@ def _euler_to_matrix_with_jacobian(angles: Tensor, convention: EulerConvention):
 _EULER_TO_MATRIX = jacobian_rule(_euler_to_matrix_small, _euler_to_matrix_with_jacobian)
 
 
-@kernel
+@kernel(blocked_row_dims=(1,))
 def euler_to_matrix_unchecked(angles: Tensor, convention: EulerConvention) -> Tensor:
     if is_small(angles, 3, share=1 / 16, gpu_share=0.25):  # the 4-slot, 27-column outer product: pays up to ~250 rows
         return closed_form.apply(_EULER_TO_MATRIX, angles, convention=convention)
@@ -388,7 +388,7 @@ def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Option
     return restore(_to_degrees(angles, degrees), dtype)
 
 
-@kernel
+@kernel(blocked_row_dims=(2,))
 def matrix_to_euler_unchecked(R: Tensor, convention: EulerConvention, eps: float) -> Tensor:
     if not is_small(R, 9, share=0.25, gpu_share=4):  # crossover measured near 1000 rows (with the closed-form backward)
         if torch.compiler.is_compiling():

@@ -81,7 +81,7 @@ _QUAT_TO_MATRIX_PLANAR = Rule(_quat_to_matrix_planar, _quat_to_matrix_planar_par
                               _quat_to_matrix_planar)
 
 
-@kernel
+@kernel(blocked_row_dims=(1,))
 def quat_to_matrix_unchecked(q: Tensor) -> Tensor:
     """Homogeneous form divided by ``|q|^2``: the rotation of ``q / |q|``, NaN for ``q = 0``."""
     if is_small(q, 4, gpu_share=4):

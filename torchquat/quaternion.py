@@ -76,7 +76,7 @@ _PRODUCT_COLUMNWISE = Rule(_product_columnwise, _product_columnwise_parts, _prod
                            _product_columnwise)
 
 
-@kernel
+@kernel(blocked_row_dims=(1, 1))
 def hamilton_product(p: Tensor, q: Tensor) -> Tensor:
     """Unchecked Hamilton product of prepared tensors (used internally)."""
     if is_small(p, 4, gpu_share=4) and is_small(q, 4, gpu_share=4):

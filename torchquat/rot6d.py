@@ -55,7 +55,7 @@ def _rot6d_backward(grad: Tensor, inputs, saved):
 _ROT6D = Rule(_rot6d_small, _rot6d_parts, _rot6d_backward)
 
 
-@kernel
+@kernel(blocked_row_dims=(1,))
 def rot6d_to_matrix_unchecked(x: Tensor) -> Tensor:
     if not is_small(x, 6, gpu_share=4):
         if torch.compiler.is_compiling():
