@@ -7,6 +7,9 @@ is a compile of a few seconds per kernel on first use (cached on disk by inducto
 compiler at run time, so the path is opt-in. The eager code is the same source: inside a user's
 own ``torch.compile`` region, under ``torch.func`` transforms, or when switched off, the eager
 kernel runs and is traced as usual.
+
+Eager, the same dispatcher runs large CPU batches with nothing to differentiate block by block,
+so that each pass over a block's columns stays in cache (``_math.BLOCK_ROWS``).
 """
 
 import functools
