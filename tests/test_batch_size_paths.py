@@ -251,7 +251,7 @@ BLOCKED = ["quat_to_matrix", "matrix_to_quat", "euler_to_quat[ZYX]", "euler_to_q
            "matrix_to_axis_angle", "quat_multiply", "rot6d_to_matrix", "quat_geodesic_distance", "matrix_geodesic_distance"]
 # (axis-angle -> matrix stacks its columns; the distances' output is one column: no transposing matmul)
 WRITTEN_IN_PLACE = sorted(set(BLOCKED) - {"axis_angle_to_matrix", "quat_geodesic_distance", "matrix_geodesic_distance"})
-BLOCKED_ROWS = tqmath.BLOCK_MIN_BLOCKS * tqmath.BLOCK_ROWS + 777  # (a ragged end)
+BLOCKED_ROWS = tqmath.BLOCK_MIN_BLOCKS * tqmath.BLOCK_ROWS + 777  # (one thread's blocks, and a ragged end)
 
 
 def _tiled(inputs, rows):
@@ -264,8 +264,17 @@ def _tiled(inputs, rows):
     return out
 
 
+@pytest.fixture(autouse=True)
+def _threads():
+    """The blocked tests' sizes are one thread's (blocks scale with the thread count): restore it."""
+    threads = torch.get_num_threads()
+    yield
+    torch.set_num_threads(threads)
+
+
 def _whole_and_blocked(fn, inputs, monkeypatch):
-    """``fn(*inputs)`` without blocks and with them, and the operations each dispatched."""
+    """``fn(*inputs)`` without blocks and with them (on one thread), and the operations each dispatched."""
+    torch.set_num_threads(1)
     results = []
     for min_blocks in (10**12, tqmath.BLOCK_MIN_BLOCKS):
         monkeypatch.setattr(tqmath, "BLOCK_MIN_BLOCKS", min_blocks)
@@ -295,6 +304,8 @@ def test_a_block_takes_the_whole_batchs_path(name, monkeypatch):
     # the highest), so a block dispatches the operations of the large batch it comes from.
     fn, generic, _ = ALL[name]
     monkeypatch.setattr(tqmath, "BLOCK_MIN_BLOCKS", 10**12)
+
+    torch.set_num_threads(1)
 
     def dispatched(rows):
         inputs = [torch.zeros((rows,) + x.shape[1:], dtype=torch.float32) for x in generic()]
@@ -343,3 +354,16 @@ def test_a_kernel_whose_intermediate_takes_the_lent_slice_still_returns_its_outp
     (whole, _), (blocked, blocked_ops) = _whole_and_blocked(swapped_pairs, (x,), monkeypatch)
     assert blocked_ops.count("mm") == 2 * tqmath.BLOCK_MIN_BLOCKS  # blocked, on contiguous columns
     assert torch.equal(blocked, whole)
+
+
+def test_blocks_grow_with_the_thread_count(monkeypatch):
+    # Each operation keeps one 32,768-element chunk or more per thread: two threads, blocks of twice
+    # the rows (so 8 one-thread blocks' worth of rows runs whole).
+    fn, generic, _ = ALL["quat_geodesic_distance"]
+    q1, q2 = (x.to(torch.float32) for x in _tiled(generic(), tqmath.BLOCK_MIN_BLOCKS * tqmath.BLOCK_ROWS))
+    (_, one_thread_whole), (_, one_thread_blocked) = _whole_and_blocked(fn, (q1, q2), monkeypatch)
+    torch.set_num_threads(2)
+    assert tqmath.block_rows() == 2 * tqmath.BLOCK_ROWS
+    with DispatchRecorder() as recorder:
+        fn(q1, q2)
+    assert recorder.names == one_thread_whole != one_thread_blocked

@@ -90,7 +90,7 @@ def _compiled_for(fn: Callable, static: Tuple) -> Callable:
 
 
 def _run_blocked(fn: Callable, tensors: Tuple[Tensor, ...], row_dims: Tuple[int, ...], static) -> Optional[Tensor]:
-    """``fn(*tensors, **static)`` computed ``_math.BLOCK_ROWS`` rows at a time into one output, or
+    """``fn(*tensors, **static)`` computed ``_math.block_rows()`` rows at a time into one output, or
     ``None`` where blocks do not apply: off the CPU, with a gradient to record (autograd would
     keep one graph per block), for broadcast or non-contiguous inputs, or for fewer than
     ``_math.BLOCK_MIN_BLOCKS`` blocks. ``row_dims``: each input's number of row dimensions."""
@@ -101,10 +101,10 @@ def _run_blocked(fn: Callable, tensors: Tuple[Tensor, ...], row_dims: Tuple[int,
     if any(t.shape[:t.dim() - r] != batch or not t.is_contiguous() for t, r in zip(tensors, row_dims)):
         return None
     n_rows = batch.numel()
-    n_blocks = n_rows // _math.BLOCK_ROWS
+    n_blocks = n_rows // _math.block_rows()
     if n_blocks < _math.BLOCK_MIN_BLOCKS:
         return None
-    # Equal blocks (BLOCK_ROWS to 2 BLOCK_ROWS rows) of a multiple of 64 rows: vectorised loops
+    # Equal blocks (1 to 2 block_rows()) of a multiple of 64 rows: vectorised loops
     # leave a ragged end to scalar code (atan2 can differ there by an ulp), so only the last
     # block has one, on the whole batch's rows. (The results agree with the whole batch's to an
     # ulp, as any two batch sizes' do.)
@@ -154,7 +154,7 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
                 and not torch._C._are_functorch_transforms_active()):
             return _compiled_for(fn, tuple(sorted(static.items())))(*tensors)
         if (blocked_row_dims is not None and not torch.compiler.is_compiling()
-                and tensors[0].numel() >= _math.BLOCK_ROWS * _math.BLOCK_MIN_BLOCKS
+                and tensors[0].numel() >= _math.BLOCK_ROWS * _math.BLOCK_MIN_BLOCKS  # (one thread's bound: a cheap first test)
                 and not torch._C._are_functorch_transforms_active()):
             out = _run_blocked(fn, tensors, blocked_row_dims, static)
             if out is not None:

@@ -74,8 +74,17 @@ memory; each block's final transposing matmul writes its slice of the output in 
 planar bound (2 x ``PLANAR_ROWS``), so that a block takes the whole batch's path."""
 
 BLOCK_MIN_BLOCKS = 8
-"""Blocking starts at this many blocks (524,288 rows): at 540,000 rows every kernel gains or
-breaks even (0.98-1.36x); at 270,000 some lose up to 15%."""
+"""Blocking starts at this many blocks (524,288 rows on one thread): at 540,000 rows every kernel
+gains or breaks even (0.98-1.36x); at 270,000 some lose up to 15%."""
+
+
+def block_rows() -> int:
+    """The rows of a block: ``BLOCK_ROWS`` per intra-op thread. ATen splits an elementwise operation
+    into chunks of at least 32,768 elements, one per thread; so a block of ``BLOCK_ROWS`` times
+    the thread count keeps every operation as parallel as on the whole batch, and each thread's
+    share of a column (the working set of its core) at ``BLOCK_ROWS`` rows. (On many cores the
+    whole batch's shares are already that small below ``BLOCK_MIN_BLOCKS`` blocks.)"""
+    return BLOCK_ROWS * torch.get_num_threads()
 
 
 HALF_IDENTITY = {k: tuple(tuple(0.5 * float(i == j) for j in range(k)) for i in range(k)) for k in (3, 4)}
