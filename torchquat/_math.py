@@ -70,7 +70,8 @@ a large-batch kernel makes 15 to 45 passes over columns of its batch, and a bloc
 (256 KB in float32) stay in the CPU's cache between passes where 1e6 rows' (4 MB each) go to
 memory; each block's final transposing matmul writes its slice of the output in place
 (:func:`torchquat._planes.lend`). Measured at 1e6 rows: 1.06-1.42x faster in float32,
-1.05-1.53x in float64 (``docs/bench_profile.md``, "Blocks of rows"). Not below quat -> Euler's
+1.05-1.53x in float64, and the temporaries a block's, not the batch's (peak memory 5 MB instead
+of 76 for the matrix distance; ``docs/bench_profile.md``, "Blocks of rows"). Not below quat -> Euler's
 planar bound (2 x ``PLANAR_ROWS``), so that a block takes the whole batch's path."""
 
 BLOCK_MIN_BLOCKS = 8
