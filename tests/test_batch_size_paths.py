@@ -367,3 +367,21 @@ def test_blocks_grow_with_the_thread_count(monkeypatch):
     with DispatchRecorder() as recorder:
         fn(q1, q2)
     assert recorder.names == one_thread_whole != one_thread_blocked
+
+
+@pytest.mark.parametrize("name", PATH_DEPENDENT)
+def test_transforms_run_the_large_batch_paths(name, large_batches):
+    # vmap and torch.func.grad on large batches: the contiguous columns' out= buffers have no
+    # batching rule, so under a transform the plain column code runs.
+    fn, generic, _ = ALL[name]
+    inputs = generic()
+    large_batches()
+    expected = fn(*inputs)
+    stacked = [torch.stack((x, x.flip(0))) for x in inputs]
+    out = torch.func.vmap(fn)(*stacked)
+    assert torch.allclose(out[0], expected, atol=1e-12, rtol=0) and torch.allclose(out[1], fn(*(x.flip(0) for x in inputs)), atol=1e-12, rtol=0)
+    grads = torch.func.grad(lambda *x: fn(*x).sum(), argnums=tuple(range(len(inputs))))(*inputs)
+    leaves = [x.clone().requires_grad_() for x in inputs]
+    references = torch.autograd.grad(fn(*leaves).sum(), leaves)
+    for g, r in zip(grads, references):
+        assert torch.allclose(g, r, atol=1e-10, rtol=0)

@@ -28,6 +28,7 @@ import torch
 from torch import Tensor
 
 from . import _math
+from ._closed_form import _transformed
 from ._math import combine, constant, sparse_columns
 
 
@@ -155,10 +156,10 @@ def plane_buffer(k: int, cols: Sequence[Tensor], share: float = 1.0) -> Optional
     """An empty ``(k, *batch)`` tensor for a kernel's last ``k`` columns to be written into (``out=``),
     so that :func:`rows` transposes them without stacking them first (a pass over all of them:
     1.6 ms for 4 columns of 1e6, 4.6 ms for 9). Only on the path of contiguous columns and where
-    nothing records a graph (autograd refuses ``out=``): a closed-form rule's forward and backward,
-    and values; ``None`` elsewhere. ``cols``: the columns the planes are computed from (their
+    nothing records a graph (autograd refuses ``out=``, as ``torch.func`` transforms and forward-mode
+    AD do): a closed-form rule's forward and backward, and values; ``None`` elsewhere. ``cols``: the columns the planes are computed from (their
     broadcast batch shape, dtype and device)."""
-    if torch.compiler.is_compiling():
+    if torch.compiler.is_compiling() or _transformed():  # (out= has no batching or forward-AD rule)
         return None
     like = max(cols, key=Tensor.numel)
     if (not planar(like, 1, share) or like.dim() == 0
