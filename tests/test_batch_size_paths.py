@@ -385,3 +385,29 @@ def test_transforms_run_the_large_batch_paths(name, large_batches):
     references = torch.autograd.grad(fn(*leaves).sum(), leaves)
     for g, r in zip(grads, references):
         assert torch.allclose(g, r, atol=1e-10, rtol=0)
+
+
+def test_threads_blocking_at_once_keep_their_own_outputs(monkeypatch):
+    # The slice a block lends to its final matmul is the calling thread's (the io reader thread,
+    # or a user's worker threads, may run kernels at the same time).
+    import threading
+
+    torch.set_num_threads(1)
+    generator = torch.Generator().manual_seed(4)
+    batches = [tq.random_quat(BLOCKED_ROWS, generator=generator) for _ in range(2)]
+    monkeypatch.setattr(tqmath, "BLOCK_MIN_BLOCKS", 10**12)
+    expected = [tq.quat_to_matrix(q) for q in batches]
+    monkeypatch.setattr(tqmath, "BLOCK_MIN_BLOCKS", 8)
+    results = [[], []]
+
+    def work(i):
+        for _ in range(3):
+            results[i].append(tq.quat_to_matrix(batches[i]))
+
+    workers = [threading.Thread(target=work, args=(i,)) for i in range(2)]
+    for w in workers:
+        w.start()
+    for w in workers:
+        w.join()
+    for got, want in zip(results, expected):
+        assert len(got) == 3 and all(torch.equal(g, want) for g in got)
