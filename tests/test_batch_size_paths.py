@@ -328,17 +328,28 @@ def test_blocks_write_their_output_in_place(name, monkeypatch):
     assert unlent_ops.count("copy_") - lent_ops.count("copy_") == tqmath.BLOCK_MIN_BLOCKS - 1
 
 
-def test_batches_that_cannot_be_blocked_run_whole(monkeypatch):
-    # batch dims of any rank are blocked; broadcast, strided and differentiated inputs run whole
+def test_which_batches_are_blocked(monkeypatch):
+    # Batch dims of any rank, and one row against many (one rotation for a point cloud), are
+    # blocked; strided and differentiated inputs run whole.
     fn, generic, _ = ALL["quat_geodesic_distance"]
     q1, q2 = (x.to(torch.float32) for x in _tiled(generic(), tqmath.BLOCK_MIN_BLOCKS * tqmath.BLOCK_ROWS))
-    (whole, _), (blocked, _) = _whole_and_blocked(fn, (q1.view(2, -1, 4), q2.view(2, -1, 4)), monkeypatch)
-    assert blocked.shape == whole.shape == (2, q1.shape[0] // 2)
-    torch.testing.assert_close(blocked, whole, rtol=0, atol=4 * torch.finfo(torch.float32).eps)
-    for case in (q1[:1], q1.T.contiguous().T, q1.clone().requires_grad_()):
+    for a, b in ((q1.view(2, -1, 4), q2.view(2, -1, 4)), (q1[:1], q2), (q2, q1[0]), (q1[:1].view(1, 1, 4), q2)):
+        (whole, whole_ops), (blocked, blocked_ops) = _whole_and_blocked(fn, (a, b), monkeypatch)
+        assert len(blocked_ops) > 7 * len(whole_ops)
+        assert blocked.shape == whole.shape
+        torch.testing.assert_close(blocked, whole, rtol=0, atol=4 * torch.finfo(torch.float32).eps)
+    for case in (q1.T.contiguous().T, q1.clone().requires_grad_()):
         (whole, whole_ops), (blocked, blocked_ops) = _whole_and_blocked(fn, (case, q2), monkeypatch)
         assert blocked_ops == whole_ops and torch.equal(blocked, whole)
         assert blocked.requires_grad == case.requires_grad
+
+
+def test_one_rotation_for_many_vectors_is_blocked(monkeypatch):
+    fn, generic, _ = ALL["quat_rotate"]
+    q, v = (x.to(torch.float32) for x in _tiled(generic(), BLOCKED_ROWS))
+    (whole, whole_ops), (blocked, blocked_ops) = _whole_and_blocked(fn, (q[3], v), monkeypatch)
+    assert len(blocked_ops) > 7 * len(whole_ops) and blocked.shape == whole.shape == v.shape
+    torch.testing.assert_close(blocked, whole, rtol=0, atol=4 * torch.finfo(torch.float32).eps)
 
 
 @pytest.mark.parametrize("final", ["fresh", "view of the lent slice"])

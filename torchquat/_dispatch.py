@@ -92,15 +92,16 @@ def _compiled_for(fn: Callable, static: Tuple) -> Callable:
 def _run_blocked(fn: Callable, tensors: Tuple[Tensor, ...], row_dims: Tuple[int, ...], static) -> Optional[Tensor]:
     """``fn(*tensors, **static)`` computed ``_math.block_rows()`` rows at a time into one output, or
     ``None`` where blocks do not apply: off the CPU, with a gradient to record (autograd would
-    keep one graph per block), for broadcast or non-contiguous inputs, or for fewer than
-    ``_math.BLOCK_MIN_BLOCKS`` blocks. ``row_dims``: each input's number of row dimensions."""
-    x = tensors[0]
-    if x.device.type != "cpu" or (torch.is_grad_enabled() and any(t.requires_grad for t in tensors)):
+    keep one graph per block), for non-contiguous inputs or batch shapes that broadcast other than
+    one row against many, or for fewer than ``_math.BLOCK_MIN_BLOCKS`` blocks. ``row_dims``: each
+    input's number of row dimensions."""
+    if tensors[0].device.type != "cpu" or (torch.is_grad_enabled() and any(t.requires_grad for t in tensors)):
         return None
-    batch = x.shape[:x.dim() - row_dims[0]]
-    if any(t.shape[:t.dim() - r] != batch or not t.is_contiguous() for t, r in zip(tensors, row_dims)):
-        return None
+    batches = [t.shape[:t.dim() - r] for t, r in zip(tensors, row_dims)]
+    batch = batches[0] if all(b == batches[0] for b in batches) else torch.broadcast_shapes(*batches)
     n_rows = batch.numel()
+    if any(not t.is_contiguous() or b.numel() not in (n_rows, 1) for t, b in zip(tensors, batches)):
+        return None
     n_blocks = n_rows // _math.block_rows()
     if n_blocks < _math.BLOCK_MIN_BLOCKS:
         return None
@@ -109,7 +110,9 @@ def _run_blocked(fn: Callable, tensors: Tuple[Tensor, ...], row_dims: Tuple[int,
     # block has one, on the whole batch's rows. (The results agree with the whole batch's to an
     # ulp, as any two batch sizes' do.)
     size = -(-n_rows // (n_blocks * 64)) * 64
-    blocks = zip(*(t.view((n_rows,) + t.shape[t.dim() - r:]).split(size) for t, r in zip(tensors, row_dims)))
+    # (a single row, e.g. one rotation applied to many vectors, goes whole to every block)
+    blocks = zip(*(t.view((n_rows,) + t.shape[t.dim() - r:]).split(size) if b.numel() == n_rows
+                   else [t.view((1,) + t.shape[t.dim() - r:])] * -(-n_rows // size) for t, b, r in zip(tensors, batches, row_dims)))
     first = fn(*next(blocks), **static)
     out = first.new_empty((n_rows,) + first.shape[1:])  # (a fresh output of ours: no input is written)
     out.narrow(0, 0, first.shape[0]).copy_(first)
@@ -117,7 +120,7 @@ def _run_blocked(fn: Callable, tensors: Tuple[Tensor, ...], row_dims: Tuple[int,
     for block in blocks:
         # The block's slice of the output is lent to the kernel's final transposing matmul
         # (_planes.rows), which writes it in place: one pass over the output less per block.
-        target = out.narrow(0, start, block[0].shape[0])
+        target = out.narrow(0, start, min(size, n_rows - start))
         _planes.lend(target.view(target.shape[0], -1))
         try:
             y = fn(*block, **static)
@@ -154,7 +157,7 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
                 and not torch._C._are_functorch_transforms_active()):
             return _compiled_for(fn, tuple(sorted(static.items())))(*tensors)
         if (blocked_row_dims is not None and not torch.compiler.is_compiling()
-                and tensors[0].numel() >= _math.BLOCK_ROWS * _math.BLOCK_MIN_BLOCKS  # (one thread's bound: a cheap first test)
+                and max(tensors[0].numel(), tensors[-1].numel()) >= _math.BLOCK_ROWS * _math.BLOCK_MIN_BLOCKS  # (one thread's bound: a cheap first test)
                 and not torch._C._are_functorch_transforms_active()):
             out = _run_blocked(fn, tensors, blocked_row_dims, static)
             if out is not None:
