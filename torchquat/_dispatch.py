@@ -89,6 +89,11 @@ def _compiled_for(fn: Callable, static: Tuple) -> Callable:
     return compiled
 
 
+# A first test, cheap enough for one rotation (0.1 us): no batch below one thread's default bound
+# is blocked; _run_blocked reads the live settings.
+_BLOCKED_FROM = _math.BLOCK_ROWS * _math.BLOCK_MIN_BLOCKS
+
+
 def _run_blocked(fn: Callable, tensors: Tuple[Tensor, ...], row_dims: Tuple[int, ...], static) -> Optional[Tensor]:
     """``fn(*tensors, **static)`` computed ``_math.block_rows()`` rows at a time into one output, or
     ``None`` where blocks do not apply: off the CPU, with a gradient to record (autograd would
@@ -156,9 +161,9 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
         if (_enabled and not torch.compiler.is_compiling()
                 and not torch._C._are_functorch_transforms_active()):
             return _compiled_for(fn, tuple(sorted(static.items())))(*tensors)
-        if (blocked_row_dims is not None and not torch.compiler.is_compiling()
-                and max(tensors[0].numel(), tensors[-1].numel()) >= _math.BLOCK_ROWS * _math.BLOCK_MIN_BLOCKS  # (one thread's bound: a cheap first test)
-                and not torch._C._are_functorch_transforms_active()):
+        if (blocked_row_dims is not None
+                and (tensors[0].numel() >= _BLOCKED_FROM or tensors[-1].numel() >= _BLOCKED_FROM)
+                and not torch.compiler.is_compiling() and not torch._C._are_functorch_transforms_active()):
             out = _run_blocked(fn, tensors, blocked_row_dims, static)
             if out is not None:
                 return out
