@@ -164,7 +164,7 @@ def _dense_tables(name: str):
 DENSE = {name: _dense_tables(name) for name in EULER_CONVENTIONS}
 
 
-def angles_parts(forms, conv: EulerConvention, eps: float, abcd2, out: Optional[Tensor] = None):
+def angles_parts(forms, conv: EulerConvention, eps: float, abcd2, out: Optional[Tensor] = None, values: bool = False):
     """The same angles as ``torchquat._euler_small``, written column by column with the tables'
     numbers as literals: for large batches (a handful of passes over 1-D columns instead of
     strided pair tensors) and for ``torch.compile``, which fuses it into one vectorised loop.
@@ -177,13 +177,17 @@ def angles_parts(forms, conv: EulerConvention, eps: float, abcd2, out: Optional[
     A quaternion's forms are of order ``|q|^2`` and ``2h`` squares them again, which underflows
     for ``|q|`` below about 1e-77 (float64) or 3e-10 (float32) and would read as gimbal lock; so
     t1's pair and ``Z`` are first divided by ``|abcd|^2`` (three passes, the angles unchanged).
-    That also makes ``q = 0``, whose forms are all 0 (a plausible (0, 0, 0)), NaN throughout."""
+    That also makes ``q = 0``, whose forms are all 0 (a plausible (0, 0, 0)), NaN throughout.
+
+    ``values``: nothing will be differentiated, so the substitutions that keep autograd finite
+    (``safe_sqrt``'s, and ``(0, 1)`` for t1's pair at lock) are left out: the same angles bit for
+    bit, four passes fewer (and no parts for the backward)."""
     y1, x1, y_zero, x_zero, y_pi, x_pi, z = forms
     scale = None
     if isinstance(abcd2, Tensor):
         scale, abcd2 = abcd2, 1.0
         y1, x1, z = y1 / scale, x1 / scale, z / scale
-    two_h = safe_sqrt(y1 * y1 + x1 * x1)
+    two_h = (torch.sqrt if values else safe_sqrt)(y1 * y1 + x1 * x1)
     near_zero = z >= 0 if conv.symmetric else z <= 0  # |ab| >= |cd|: the small path's test
     tb = forms_tables(conv.name)[3]
     if torch.compiler.is_compiling():  # (inductor's where is a branch-free blend)
@@ -202,9 +206,14 @@ def angles_parts(forms, conv: EulerConvention, eps: float, abcd2, out: Optional[
             return torch.lerp(if_near_pi, if_near_zero, weight)
         step = weight * (-2.0 * tb) + tb
     locked = two_h <= abcd2 * math.sin(eps)  # sin(middle) <= sin(eps), as the small path
-    y1_used, x1_used = torch.where(locked, 0.0, y1), torch.where(locked, 1.0, x1)  # t1 = 0 at lock
     final = (lambda i: None) if out is None else out.__getitem__  # (the last passes write into the buffer)
-    t1 = torch.atan2(y1_used, x1_used, out=final(2) if conv.intrinsic else None)
+    if values:  # (at lock the discarded atan2 of about (0, 0) is any angle: no gradient to spoil;
+        # strided columns are copied, as the wheres would: atan2's vectorised loop, the same bits)
+        t1 = torch.where(locked, constant("zero", 0.0, y1), torch.atan2(y1.contiguous(), x1.contiguous()),
+                         out=final(2) if conv.intrinsic else None)
+    else:
+        y1_used, x1_used = torch.where(locked, 0.0, y1), torch.where(locked, 1.0, x1)  # t1 = 0 at lock
+        t1 = torch.atan2(y1_used, x1_used, out=final(2) if conv.intrinsic else None)
     middle = torch.atan2(two_h, z, out=final(1)) if conv.symmetric else torch.atan2(z, two_h, out=final(1))
     y_double, x_double = pick(y_zero, y_pi), pick(x_zero, x_pi)
     double = torch.atan2(y_double, x_double)
@@ -217,6 +226,8 @@ def angles_parts(forms, conv: EulerConvention, eps: float, abcd2, out: Optional[
         # lock pair (2ab, a^2 - b^2) or (-2cd, c^2 - d^2) is the double angle's up to sign: -step D
         zero = constant("zero", 0.0, t3)
         angles = (torch.where(locked, -step * t3, t1, out=final(0)), middle, torch.where(locked, zero, t3, out=final(2)))
+    if values:
+        return angles, None
     return angles, (y1, x1, y1_used, x1_used, y_double, x_double, two_h, z, locked, weight, step, scale)
 
 
@@ -263,9 +274,9 @@ def forms_gradient(grad, saved, conv: EulerConvention, out: Optional[Tensor] = N
 QUAT_TO_EULER_PLANAR_SHARE, MATRIX_TO_EULER_PLANAR_SHARE = 2.0, 1.0 / 32
 
 
-def _quat_to_euler_planar_parts(q: Tensor, convention: EulerConvention, eps: float):
+def _quat_to_euler_planar_parts(q: Tensor, convention: EulerConvention, eps: float, values: bool = False):
     """Contiguous columns: the forms from q's 10 products in one matmul; the angles, and what the
-    closed-form backward needs."""
+    closed-form backward needs (``values``: the angles alone, see :func:`angles_parts`)."""
     share = QUAT_TO_EULER_PLANAR_SHARE
     components = columns(q, share=share)
     buffer = plane_buffer(len(PAIRS), components, share)
@@ -273,8 +284,8 @@ def _quat_to_euler_planar_parts(q: Tensor, convention: EulerConvention, eps: flo
     *forms, abcd2 = combinations(products if buffer is None else buffer, DENSE[convention.name][0],
                                  "euler_q_" + convention.name, share=share)
     buffer = plane_buffer(3, forms, share)
-    angles, saved = angles_parts(forms, convention, eps, abcd2, out=buffer)
-    return rows(angles if buffer is None else buffer, share=share), (*components, *saved)
+    angles, saved = angles_parts(forms, convention, eps, abcd2, out=buffer, values=values)
+    return rows(angles if buffer is None else buffer, share=share), None if values else (*components, *saved)
 
 
 def quat_to_euler_planar(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
@@ -308,16 +319,17 @@ def _quat_to_euler_planar_backward(grad: Tensor, inputs, saved, convention: Eule
     return (rows(bilinear(g_products, components, terms, out=plane_buffer(4, g_products, share)), share=share),)
 
 
-QUAT_TO_EULER_PLANAR = Rule(quat_to_euler_planar, _quat_to_euler_planar_parts, _quat_to_euler_planar_backward)
+QUAT_TO_EULER_PLANAR = Rule(quat_to_euler_planar, _quat_to_euler_planar_parts, _quat_to_euler_planar_backward,
+                            lambda q, convention, eps: _quat_to_euler_planar_parts(q, convention, eps, values=True)[0])
 
 
-def _matrix_to_euler_columnwise_parts(R: Tensor, convention: EulerConvention, eps: float):
+def _matrix_to_euler_columnwise_parts(R: Tensor, convention: EulerConvention, eps: float, values: bool = False):
     """The forms from R's entries (eager CPU: one matmul; else one pass per term); the angles, and
-    what the closed-form backward needs."""
+    what the closed-form backward needs (``values``: the angles alone, see :func:`angles_parts`)."""
     _, table, offset, abcd2 = DENSE[convention.name]
     forms = columns(R.flatten(-2), table, "euler_R_" + convention.name, offset, share=MATRIX_TO_EULER_PLANAR_SHARE)
     buffer = plane_buffer(3, forms, MATRIX_TO_EULER_PLANAR_SHARE)
-    angles, saved = angles_parts(forms, convention, eps, abcd2, out=buffer)
+    angles, saved = angles_parts(forms, convention, eps, abcd2, out=buffer, values=values)
     return rows(angles if buffer is None else buffer, share=MATRIX_TO_EULER_PLANAR_SHARE), saved
 
 
@@ -340,4 +352,5 @@ def _matrix_to_euler_columnwise_backward(grad: Tensor, inputs, saved, convention
 
 
 MATRIX_TO_EULER_COLUMNWISE = Rule(matrix_to_euler_columnwise, _matrix_to_euler_columnwise_parts,
-                                   _matrix_to_euler_columnwise_backward)
+                                   _matrix_to_euler_columnwise_backward,
+                                   lambda R, convention, eps: _matrix_to_euler_columnwise_parts(R, convention, eps, values=True)[0])
