@@ -100,7 +100,7 @@ def _run_blocked(fn: Callable, tensors: Tuple[Tensor, ...], row_dims: Tuple[int,
     keep one graph per block), for non-contiguous inputs or batch shapes that broadcast other than
     one row against many, or for fewer than ``_math.BLOCK_MIN_BLOCKS`` blocks. ``row_dims``: each
     input's number of row dimensions."""
-    if tensors[0].device.type != "cpu" or (torch.is_grad_enabled() and any(t.requires_grad for t in tensors)):
+    if not tensors[0].is_cpu or (torch.is_grad_enabled() and any(t.requires_grad for t in tensors)):
         return None
     batches = [t.shape[:t.dim() - r] for t, r in zip(tensors, row_dims)]
     batch = batches[0] if all(b == batches[0] for b in batches) else torch.broadcast_shapes(*batches)

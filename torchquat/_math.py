@@ -111,7 +111,7 @@ def is_small(x: Tensor, row_numel: int, share: float = 1.0, gpu_share: float = 1
     loop, and a matmul would split it. Where a matmul would round (:func:`matmul_rounds`) it is no
     too: the large-batch paths are written without matmuls.
     """
-    rows = SMALL_BATCH_ROWS * share if x.device.type == "cpu" else GPU_SMALL_BATCH_ROWS * gpu_share
+    rows = SMALL_BATCH_ROWS * share if x.is_cpu else GPU_SMALL_BATCH_ROWS * gpu_share  # (is_cpu: 0.05 us, device.type: 0.3)
     return x.numel() <= rows * row_numel and not torch.compiler.is_compiling() and not matmul_rounds(x)
 
 
@@ -135,7 +135,7 @@ def constant(name: str, values, like: Tensor, dtype=None) -> Tensor:
     dtype = like.dtype if dtype is None else dtype
     if torch.compiler.is_compiling():
         return torch.tensor(values, dtype=dtype, device=like.device)
-    key = (name, dtype, like.device)
+    key = (name, dtype) if like.is_cpu else (name, dtype, like.device)  # (reading .device costs 0.2 us)
     table = _CONSTANTS.get(key)
     if table is None:
         table = _CONSTANTS[key] = torch.tensor(values, dtype=dtype, device=like.device)

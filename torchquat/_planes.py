@@ -35,7 +35,7 @@ from ._math import combine, constant, sparse_columns
 def planar(x: Tensor, row_numel: int = 1, share: float = 1.0) -> bool:
     """Whether column code on ``x`` (rows of ``row_numel``) should use contiguous planes: eager, on
     the CPU, and at least ``share * PLANAR_ROWS`` rows (a kernel's measured crossover)."""
-    return (not torch.compiler.is_compiling() and x.device.type == "cpu"
+    return (not torch.compiler.is_compiling() and x.is_cpu
             and x.numel() >= _math.PLANAR_ROWS * share * row_numel)
 
 
