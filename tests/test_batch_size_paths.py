@@ -439,3 +439,35 @@ def test_large_batch_euler_values_equal_the_differentiable_forward_bit_for_bit(c
         differentiable = fn(x.clone().requires_grad_(), convention)
         assert differentiable.grad_fn is not None
         torch.testing.assert_close(values, differentiable.detach(), rtol=0, atol=0, equal_nan=True)
+
+
+def _near_the_lock_boundary(convention: str, dtype, rows: int = 2000):
+    """Rotations whose middle angle is within 10% of ``eps`` from 0 / pi/2 off lock's edge, where the
+    rounding of each path decides: float64 angles turned into quaternions and matrices."""
+    g = torch.Generator().manual_seed(7)
+    eps = 1e-7 if dtype == torch.float64 else 1e-6
+    lock_at = 0.0 if convention.upper()[0] == convention.upper()[2] else torch.pi / 2
+    offset = eps * (1.0 + 0.1 * (2 * torch.rand(rows, generator=g, dtype=torch.float64) - 1))
+    middle = lock_at + offset if lock_at == 0.0 else lock_at - offset
+    angles = torch.stack((torch.rand(rows, generator=g, dtype=torch.float64) * 6 - 3, middle,
+                          torch.rand(rows, generator=g, dtype=torch.float64) * 6 - 3), dim=-1)
+    q = tq.euler_to_quat(angles, convention).to(dtype)
+    return q, tq.quat_to_matrix(q)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64], ids=["float32", "float64"])
+@pytest.mark.parametrize("convention", ["ZYX", "xyz", "ZXZ"])
+@pytest.mark.parametrize("rows", [1000, 1500, 70_000, BLOCKED_ROWS], ids=["small", "strided", "planar", "blocked"])
+def test_gimbal_lock_mask_is_the_test_quat_to_euler_applied_at_every_batch_size(rows, convention, dtype):
+    # Near eps each path's rounding decides, so a row may lock in one batch size and not in
+    # another (both angles give its rotation); euler_gimbal_lock must take the same decision as
+    # the conversion of the same batch: a True row is one whose third angle was set to 0.
+    torch.set_num_threads(1)
+    for x, to_euler in zip(_near_the_lock_boundary(convention, dtype), (tq.quat_to_euler, tq.matrix_to_euler)):
+        x = _tiled([x], rows)[0] if rows > x.shape[0] else x[:rows]
+        mask = tq.euler_gimbal_lock(x, convention)
+        zero = to_euler(x, convention)[..., 2] == 0
+        assert 0 < mask.sum() < rows  # the boundary is crossed
+        assert zero[mask].all(), (to_euler.__name__, int((mask & ~zero).sum()))
+        # (an unlocked third angle is 0 only by rounding: t1's pair (y, 0) in float32)
+        assert (zero & ~mask).sum() <= rows // 100

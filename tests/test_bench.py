@@ -112,6 +112,13 @@ def test_bad_arguments_exit_2(capsys):
         assert bench.main(["--device", "cuda", "--allocator", "none"]) == 2
 
 
+def test_json_into_a_missing_folder_is_refused_before_the_run(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(bench._ops, "OPS_BY_NAME", {})  # (a run would fail: the check comes first)
+    assert bench.main(["--json", str(tmp_path / "no" / "x.json"), "--allocator", "none"]) == 2
+    err = capsys.readouterr().err
+    assert "--json" in err and "no such folder" in err
+
+
 def test_floor_kernel_shapes():
     f = timing.floor_fn(5, 4, (3, 3), torch.float32)  # inputs smaller than the output: a copy
     assert f().shape == (5, 3, 3)

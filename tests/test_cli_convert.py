@@ -44,7 +44,7 @@ def test_malformed_line_gives_file_line_and_exit_2(tmp_path):
 
 
 @pytest.mark.parametrize("case", ["missing", "unreadable", "unknown_extension", "same_file", "empty", "bad_target",
-                                  "ambiguous_output"])
+                                  "ambiguous_output", "chunk_size_0"])
 def test_user_errors_exit_2_without_traceback(tmp_path, case):
     good = tmp_path / "good.tum"
     good.write_text("0 0 0 0 0 0 0 1\n")
@@ -56,6 +56,7 @@ def test_user_errors_exit_2_without_traceback(tmp_path, case):
         "empty": ((tmp_path / "e.txt"), tmp_path / "o.tum"),
         "bad_target": (good, tmp_path / "o.csv", "--to", "euler:ZZX"),
         "ambiguous_output": (good, tmp_path / "o.txt"),
+        "chunk_size_0": (good, tmp_path / "o.tum", "--chunk-size", "0"),
     }[case]
     if case == "empty":
         (tmp_path / "e.txt").write_text("")

@@ -139,6 +139,13 @@ def test_usage_error_is_exit_2(tmp_path):
     assert run_crosscheck(tmp_path, "--n", "0")[0] == 2
 
 
+def test_json_into_a_missing_folder_is_exit_2_before_the_run(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(sys.modules["torchquat.crosscheck"], "crosscheck", lambda *args: pytest.fail("the check ran"))
+    assert main(["--json", str(tmp_path / "no" / "report.json")]) == 2
+    assert "no such folder" in capsys.readouterr().err
+    assert not (tmp_path / "no").exists()
+
+
 def test_float32_passes(tmp_path):
     status, out, _, data = run_crosscheck(tmp_path, "--n", "32", "--dtype", "float32", "--oracle", "scipy")
     assert status == 0, out

@@ -89,6 +89,8 @@ def test_slerp_shape_error_and_t_broadcasting():
     q0, q1 = tq.random_quat(5), tq.random_quat(5)
     assert tq.quat_slerp(q0, q1, torch.linspace(0, 1, 5)).shape == (5, 4)
     assert tq.quat_slerp(q0[0], q1[0], torch.linspace(0, 1, 7)).shape == (7, 4)
+    with pytest.raises(tq.ShapeError, match="quat_slerp: expected q0 and q1 and t with broadcastable batch shapes"):
+        tq.quat_slerp(q0, q1, torch.rand(3))  # t's batch (3,) against (5,)
 
 
 def test_convert_errors_name_the_problem():

@@ -31,6 +31,31 @@ def polars_on(request):
     fastpath.use_polars(previous)
 
 
+@needs_polars
+def test_threads_asking_for_polars_at_once_all_get_it(monkeypatch):
+    # The read-ahead thread and the writer ask first at the same time: neither may see "tried,
+    # nothing yet" and take the numpy path for its first chunk while the other is importing.
+    import builtins
+    import time
+    real_import = builtins.__import__
+
+    def slow_import(name, *args, **kwargs):
+        if name == "polars":
+            time.sleep(0.2)
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", slow_import)
+    monkeypatch.setitem(fastpath._STATE, "tried", False)
+    monkeypatch.setitem(fastpath._STATE, "module", None)
+    got = []
+    threads = [threading.Thread(target=lambda: got.append(fastpath.polars())) for _ in range(4)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert len(got) == 4 and all(module is not None and module.__name__ == "polars" for module in got)
+
+
 def numbers_of(path):
     """Every number of a text file, as floats, row by row (comments skipped)."""
     rows = []

@@ -108,3 +108,15 @@ def test_unknown_extension_and_missing_file(tmp_path):
     convert_file(odd, tmp_path / "o.tum", from_format="tum")  # overridable
     with pytest.raises(PoseFileError, match="no such file"):
         convert_file(tmp_path / "missing.tum", tmp_path / "o2.tum")
+
+
+def test_a_line_of_another_width_is_named_where_each_width_is_allowed(tmp_path):
+    # EuRoC takes 8 or more numbers a line (extra columns are ignored), but a table has one width
+    rows = [f"{1403715524907143168 + 5000000 * i},{i},2,3,1,0,0,0,0.1,0.2,0.3,1,2,3,4,5,6" for i in range(40)]
+    rows[30] = rows[30].rsplit(",", 1)[0]  # 16 numbers instead of 17
+    src = tmp_path / "data.csv"
+    src.write_text("#timestamp, p_x, p_y, p_z, q_w, q_x, q_y, q_z, ...\n" + "\n".join(rows) + "\n")
+    with pytest.raises(PoseFileError) as info:
+        convert_file(src, tmp_path / "out.tum")
+    assert info.value.line == 32  # the header is line 1
+    assert "expected 17 numbers as on line 2, found 16" in str(info.value)

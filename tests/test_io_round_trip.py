@@ -25,10 +25,13 @@ def test_formatted_floats_parse_back_to_the_same_value(dtype):
     text = format_rows([format_floats(values[:, None])])
     back = np.array(text.split(), dtype=dtype)
     np.testing.assert_array_equal(back, values)
-    if dtype == np.float64:  # and as short as repr for values that came from short decimals
-        short = np.round(np.random.default_rng(1).standard_normal(1000), 5)
-        words = format_rows([format_floats(short[:, None])]).decode().split()
-        assert all(float(w) == v and len(w) <= len(repr(v)) for w, v in zip(words, short))
+    # and as short as the shortest repr for values that came from short decimals (float32's: numpy's,
+    # from the float32 rounding interval, not the float64 one of its exact value: 0.6305, not 0.630500019)
+    short = np.round(np.random.default_rng(1).standard_normal(1000), 5).astype(dtype)
+    words = format_rows([format_floats(short[:, None])]).decode().split()
+    shortest = repr if dtype == np.float64 else str
+    assert all(dtype(w) == v and len(w) <= len(shortest(v)) for w, v in zip(words, short))
+    assert format_rows([format_floats(np.array([[0.6305, 1.638, -0.3311]], dtype=dtype))]) == b"0.6305 1.638 -0.3311\n"
 
 
 def test_nanoseconds_are_written_exactly():

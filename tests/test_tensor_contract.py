@@ -5,7 +5,7 @@ import pytest
 import torch
 
 import torchquat as tq
-from function_table import ALL
+from function_table import ALL, BINARY
 from rotation_samples import BATCH_SHAPES
 
 NAMES = sorted(ALL)
@@ -106,6 +106,17 @@ def test_float32_and_float64_inputs_are_kept():
     assert tq.quat_to_matrix(q.double()).dtype == torch.float64
     assert tq.random_quat(2).dtype == torch.get_default_dtype()
     assert tq.random_quat(2, dtype=torch.float16).dtype == torch.float16
+
+
+@pytest.mark.parametrize("name", sorted(BINARY))
+def test_mixed_precision_arguments_give_the_promoted_dtype_in_either_order(name):
+    fn, generic, _ = BINARY[name]
+    a, b = (x.float() for x in generic())  # (float32 numbers: exact in float64)
+    reference = fn(a.double(), b.double())
+    for first, second in ((a, b.double()), (a.double(), b)):
+        out = fn(first, second)
+        assert out.dtype == torch.float64  # (float32 first used to round the float64 result)
+        torch.testing.assert_close(out, reference, rtol=0, atol=1e-12)
 
 
 @pytest.mark.parametrize("name", NAMES)

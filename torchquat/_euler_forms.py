@@ -231,6 +231,10 @@ def angles_parts(forms, conv: EulerConvention, eps: float, abcd2, out: Optional[
     return angles, (y1, x1, y1_used, x1_used, y_double, x_double, two_h, z, locked, weight, step, scale)
 
 
+LOCKED = 8
+"""Where the gimbal-lock mask sits in :func:`angles_parts`' parts."""
+
+
 def angles_columnwise(forms, conv: EulerConvention, eps: float, abcd2, share: float = 1.0) -> Tensor:
     """The angles of :func:`angles_parts` side by side; ``share``: as for ``torchquat._planes.rows``."""
     return rows(angles_parts(forms, conv, eps, abcd2)[0], share=share)
@@ -274,18 +278,30 @@ def forms_gradient(grad, saved, conv: EulerConvention, out: Optional[Tensor] = N
 QUAT_TO_EULER_PLANAR_SHARE, MATRIX_TO_EULER_PLANAR_SHARE = 2.0, 1.0 / 32
 
 
-def _quat_to_euler_planar_parts(q: Tensor, convention: EulerConvention, eps: float, values: bool = False):
-    """Contiguous columns: the forms from q's 10 products in one matmul; the angles, and what the
-    closed-form backward needs (``values``: the angles alone, see :func:`angles_parts`)."""
+def _quat_planar_forms(q: Tensor, convention: EulerConvention):
+    """q's columns, and the forms and ``|abcd|^2`` from q's 10 products in one matmul."""
     share = QUAT_TO_EULER_PLANAR_SHARE
     components = columns(q, share=share)
     buffer = plane_buffer(len(PAIRS), components, share)
     products = [torch.mul(components[u], components[v], out=slot(buffer, p)) for p, (u, v) in enumerate(PAIRS)]
     *forms, abcd2 = combinations(products if buffer is None else buffer, DENSE[convention.name][0],
                                  "euler_q_" + convention.name, share=share)
-    buffer = plane_buffer(3, forms, share)
+    return components, forms, abcd2
+
+
+def _quat_to_euler_planar_parts(q: Tensor, convention: EulerConvention, eps: float, values: bool = False):
+    """Contiguous columns: the angles, and what the closed-form backward needs (``values``: the
+    angles alone, see :func:`angles_parts`)."""
+    components, forms, abcd2 = _quat_planar_forms(q, convention)
+    buffer = plane_buffer(3, forms, QUAT_TO_EULER_PLANAR_SHARE)
     angles, saved = angles_parts(forms, convention, eps, abcd2, out=buffer, values=values)
-    return rows(angles if buffer is None else buffer, share=share), None if values else (*components, *saved)
+    return rows(angles if buffer is None else buffer, share=QUAT_TO_EULER_PLANAR_SHARE), None if values else (*components, *saved)
+
+
+def quat_lock_planar(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
+    """The gimbal-lock mask of :data:`QUAT_TO_EULER_PLANAR`: the same forms and test, so the same rows."""
+    _, forms, abcd2 = _quat_planar_forms(q, convention)
+    return angles_parts(forms, convention, eps, abcd2)[1][LOCKED]
 
 
 def quat_to_euler_planar(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
@@ -323,11 +339,22 @@ QUAT_TO_EULER_PLANAR = Rule(quat_to_euler_planar, _quat_to_euler_planar_parts, _
                             lambda q, convention, eps: _quat_to_euler_planar_parts(q, convention, eps, values=True)[0])
 
 
+def _matrix_columnwise_forms(R: Tensor, convention: EulerConvention):
+    """The forms from R's entries (eager CPU: one matmul; else one pass per term), and ``|abcd|^2``."""
+    _, table, offset, abcd2 = DENSE[convention.name]
+    return columns(R.flatten(-2), table, "euler_R_" + convention.name, offset, share=MATRIX_TO_EULER_PLANAR_SHARE), abcd2
+
+
+def matrix_lock_columnwise(R: Tensor, convention: EulerConvention, eps: float) -> Tensor:
+    """The gimbal-lock mask of :data:`MATRIX_TO_EULER_COLUMNWISE`: the same forms and test."""
+    forms, abcd2 = _matrix_columnwise_forms(R, convention)
+    return angles_parts(forms, convention, eps, abcd2)[1][LOCKED]
+
+
 def _matrix_to_euler_columnwise_parts(R: Tensor, convention: EulerConvention, eps: float, values: bool = False):
     """The forms from R's entries (eager CPU: one matmul; else one pass per term); the angles, and
     what the closed-form backward needs (``values``: the angles alone, see :func:`angles_parts`)."""
-    _, table, offset, abcd2 = DENSE[convention.name]
-    forms = columns(R.flatten(-2), table, "euler_R_" + convention.name, offset, share=MATRIX_TO_EULER_PLANAR_SHARE)
+    forms, abcd2 = _matrix_columnwise_forms(R, convention)
     buffer = plane_buffer(3, forms, MATRIX_TO_EULER_PLANAR_SHARE)
     angles, saved = angles_parts(forms, convention, eps, abcd2, out=buffer, values=values)
     return rows(angles if buffer is None else buffer, share=MATRIX_TO_EULER_PLANAR_SHARE), saved

@@ -69,8 +69,9 @@ def prepare_pair(fn: str, names: Sequence[str], a, b, trailing_a: Tuple[int, ...
     """:func:`prepare` both arguments of a two-argument function, check that their batch shapes
     broadcast, and promote them to one dtype; returns them and the dtype to return in."""
     a, dtype = prepare(a, fn, names[0], trailing_a)
-    b, _ = prepare(b, fn, names[1], trailing_b)
+    b, dtype_b = prepare(b, fn, names[1], trailing_b)
     if a.shape[: a.dim() - len(trailing_a)] != b.shape[: b.dim() - len(trailing_b)]:  # (equal: nothing to check)
         check_broadcast(fn, names, (a, b), (len(trailing_a), len(trailing_b)))
     a, b = common_dtype(a, b)
-    return a, b, dtype
+    # mixed dtypes return the promoted one whatever the order (float32 with float64: float64)
+    return a, b, dtype if dtype == dtype_b else torch.promote_types(dtype, dtype_b)

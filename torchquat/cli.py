@@ -83,7 +83,7 @@ def run_convert(args: argparse.Namespace) -> int:
     # chunks 12 s with 2 threads, 0.24 s with 1). The second core parses ahead instead (io.streaming).
     torch.set_num_threads(1)
     report = Report()
-    chunk_size = args.chunk_size or DEFAULT_CHUNK_SIZE
+    chunk_size = DEFAULT_CHUNK_SIZE if args.chunk_size is None else args.chunk_size
     if chunk_size < 1:
         return _fail("--chunk-size must be a positive number of lines")
     progress = _progress_bar(args.input)

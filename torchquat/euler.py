@@ -21,8 +21,9 @@ from torch import Tensor
 from . import _closed_form as closed_form
 from ._closed_form import Rule, jacobian_rule
 from ._dispatch import kernel
-from ._euler_forms import (COLUMNWISE, MATRIX_TO_EULER_COLUMNWISE, PAIRS, QUAT_TO_EULER_PLANAR,
-                           QUAT_TO_EULER_PLANAR_SHARE, angles_columnwise, matrix_to_euler_columnwise)
+from ._euler_forms import (COLUMNWISE, LOCKED, MATRIX_TO_EULER_COLUMNWISE, PAIRS, QUAT_TO_EULER_PLANAR,
+                           QUAT_TO_EULER_PLANAR_SHARE, angles_columnwise, angles_parts, matrix_lock_columnwise,
+                           matrix_to_euler_columnwise, quat_lock_planar)
 from ._euler_small import euler_angles, lock, matrix_layout, quat_layout
 from ._math import HALF_IDENTITY, bilinear, bilinear_terms, combine, constant, contract, is_small
 from ._planes import columns, planar, plane_buffer, rows, slot
@@ -343,19 +344,44 @@ def quat_to_euler_unchecked(q: Tensor, convention: EulerConvention, eps: float) 
     if planar(q, 4, QUAT_TO_EULER_PLANAR_SHARE):
         return closed_form.apply(QUAT_TO_EULER_PLANAR, q, convention=convention, eps=eps)
     if not is_small(q, 4, share=0.25):  # crossover measured near 1000 rows
-        abcd_terms, pair_terms = COLUMNWISE[convention.name]
-        components = columns(q)  # once: under compile each unbind's backward is an (N, 4) buffer of its own
-        abcd = [combine(components, terms) for terms in abcd_terms]
-        products = [abcd[u] * abcd[v] for u, v in PAIRS]
-        *forms, abcd2 = [combine(products, terms) for terms in pair_terms]
-        # The angles are scale-invariant, but squares of the forms underflow for tiny q, and q = 0
-        # (all forms 0) must come out as NaN: the forms divided by |abcd|^2. Eager: only t1's pair
-        # and Z, in angles_parts; compiled: every form (it fuses for free).
-        if torch.compiler.is_compiling():
-            inverse = 1.0 / abcd2
-            return angles_columnwise([form * inverse for form in forms], convention, eps, 1.0)
+        forms, abcd2 = _quat_columnwise_forms(q, convention)
         return angles_columnwise(forms, convention, eps, abcd2)
     return euler_angles(q, convention, eps, is_matrix=False)
+
+
+def _quat_columnwise_forms(q: Tensor, convention: EulerConvention):
+    """The forms :data:`~torchquat._euler_forms.ANGLE_FORMS` of ``q`` and ``|abcd|^2``, column by column."""
+    abcd_terms, pair_terms = COLUMNWISE[convention.name]
+    components = columns(q)  # once: under compile each unbind's backward is an (N, 4) buffer of its own
+    abcd = [combine(components, terms) for terms in abcd_terms]
+    products = [abcd[u] * abcd[v] for u, v in PAIRS]
+    *forms, abcd2 = [combine(products, terms) for terms in pair_terms]
+    # The angles are scale-invariant, but squares of the forms underflow for tiny q, and q = 0
+    # (all forms 0) must come out as NaN: the forms divided by |abcd|^2. Eager: only t1's pair
+    # and Z, in angles_parts; compiled: every form (it fuses for free).
+    if torch.compiler.is_compiling():
+        inverse = 1.0 / abcd2
+        return [form * inverse for form in forms], 1.0
+    return forms, abcd2
+
+
+# The lock masks of quat_to_euler_unchecked and matrix_to_euler_unchecked: the same path for the
+# same batch (size, device, compiled or not, blocks), so the same forms, test and rows.
+@kernel(blocked_row_dims=(1,))
+def quat_gimbal_lock_unchecked(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
+    if planar(q, 4, QUAT_TO_EULER_PLANAR_SHARE):
+        return quat_lock_planar(q, convention, eps)
+    if not is_small(q, 4, share=0.25):
+        forms, abcd2 = _quat_columnwise_forms(q, convention)
+        return angles_parts(forms, convention, eps, abcd2)[1][LOCKED]
+    return lock(quat_layout(q, convention), eps)[1]
+
+
+@kernel(blocked_row_dims=(2,))
+def matrix_gimbal_lock_unchecked(R: Tensor, convention: EulerConvention, eps: float) -> Tensor:
+    if not is_small(R, 9, share=0.25, gpu_share=4):
+        return matrix_lock_columnwise(R, convention, eps)
+    return lock(matrix_layout(R, convention), eps)[1]
 
 
 def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Optional[float] = None) -> Tensor:
@@ -431,7 +457,9 @@ def euler_gimbal_lock(q: Tensor, convention: str, eps: Optional[float] = None) -
     """Which rotations are within ``eps`` of gimbal lock for ``convention``.
 
     Uses exactly the test :func:`quat_to_euler` (for quaternions) or :func:`matrix_to_euler`
-    (for matrices) uses, so a ``True`` row is one whose third angle was set to 0. A matrix is
+    (for matrices) uses on a batch of this size, with the same arithmetic, so a ``True`` row is one
+    whose third angle was set to 0. (Within rounding of ``eps`` small and large batches can decide
+    differently; either answer gives the rotation.) A matrix is
     tested on its own entries: for a rotation exactly ``eps`` from lock, a matrix and its
     quaternion may round to different answers. No warning is raised anywhere (that would need a
     device sync).
@@ -458,4 +486,4 @@ def euler_gimbal_lock(q: Tensor, convention: str, eps: Optional[float] = None) -
     is_matrix = isinstance(q, Tensor) and q.dim() >= 2 and tuple(q.shape[-2:]) == (3, 3)
     x, _ = prepare(q, "euler_gimbal_lock", "q", (3, 3) if is_matrix else (4,))
     eps = gimbal_eps(x.dtype) if eps is None else float(eps)
-    return lock(matrix_layout(x, conv) if is_matrix else quat_layout(x, conv), eps)[1]
+    return (matrix_gimbal_lock_unchecked if is_matrix else quat_gimbal_lock_unchecked)(x, convention=conv, eps=eps)

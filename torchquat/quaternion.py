@@ -17,7 +17,7 @@ from ._closed_form import Rule
 from ._dispatch import kernel
 from ._math import bilinear, bilinear_terms, constant, contract, is_small, outer_product, sum_of_squares
 from ._planes import columns, planar, plane_buffer, rows, slot
-from ._validation import prepare, prepare_pair, restore
+from ._validation import check_broadcast, prepare, prepare_pair, restore
 
 __all__ = [
     "quat_multiply", "quat_conjugate", "quat_inverse", "quat_normalize", "quat_standardize",
@@ -264,6 +264,8 @@ def quat_slerp(q0: Tensor, q1: Tensor, t: Union[float, Tensor]) -> Tensor:
     # a Python number is filled in on the device (as_tensor would copy it from the host, a sync)
     t = (torch.full((), float(t), dtype=q0.dtype, device=q0.device) if isinstance(t, numbers.Real)
          else torch.as_tensor(t, dtype=q0.dtype, device=q0.device)).unsqueeze(-1)
+    if t.dim() > 1:  # (a number always broadcasts)
+        check_broadcast("quat_slerp", ("q0", "q1", "t"), (q0, q1, t), (1, 1, 1))
     q1 = torch.where((q0 * q1).sum(-1, keepdim=True) < 0, -q1, q1)
     diff2 = ((q0 - q1) ** 2).sum(-1, keepdim=True)
     summ2 = ((q0 + q1) ** 2).sum(-1, keepdim=True)

@@ -28,6 +28,7 @@ import torch
 from . import ops as _ops
 from . import report as _report
 from . import timing as _timing
+from ..io.streaming import output_folder_problem
 
 __all__ = ["add_arguments", "run", "main"]
 
@@ -120,6 +121,10 @@ def _progress(text: str, enabled: bool) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark described by ``args`` (from :func:`add_arguments`); return the exit status."""
     ns: List[int] = list(getattr(args, "n", None) or [1, 1000, 1_000_000])
+    json_path = getattr(args, "json", None)
+    if json_path and output_folder_problem(json_path):  # (before the run, not after it)
+        print(f"torchquat bench: --json {output_folder_problem(json_path)}", file=sys.stderr)
+        return 2
     op_names = getattr(args, "ops", None) or [op.name for op in _ops.OPS]
     unknown = [name for name in op_names if name not in _ops.OPS_BY_NAME]
     if unknown:
@@ -299,7 +304,6 @@ def run(args: argparse.Namespace) -> int:
 
     labels = {op.name: op.label for op in selected}
     print(_report.markdown(results, labels, ns, columns, torch_peers, header, footer), end="")
-    json_path = getattr(args, "json", None)
     if json_path:
         meta = {"torchquat": torchquat.__version__, "torch": torch.__version__, "dtype": str(dtype),
                 "threads": threads, "device": str(device), "ns": ns, "compiled": compiled, "min_run_time": min_run_time, "allocator": allocator,

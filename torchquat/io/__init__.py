@@ -9,11 +9,11 @@ Example:
 from .checks import Report
 from .poses import PoseFileError, Poses
 from .streaming import (
-    DEFAULT_CHUNK_SIZE, FORMATS, POSE_FORMATS, atomic_output, convert_file, detect_format, iter_poses, output_plan,
+    DEFAULT_CHUNK_SIZE, FORMATS, POSE_FORMATS, atomic_output, output_folder_problem, convert_file, detect_format, iter_poses, output_plan,
     read_poses, read_times, write_poses,
 )
 from .transforms import ConvertRotation
 
 __all__ = ["Poses", "PoseFileError", "Report", "read_poses", "write_poses", "iter_poses", "convert_file",
-           "detect_format", "output_plan", "read_times", "atomic_output", "ConvertRotation", "FORMATS",
+           "detect_format", "output_plan", "read_times", "atomic_output", "output_folder_problem", "ConvertRotation", "FORMATS",
            "POSE_FORMATS", "DEFAULT_CHUNK_SIZE"]

@@ -17,12 +17,14 @@ values, so polars changes speed, never results:
 
 import io
 import os
+import threading
 from typing import Optional, Sequence
 
 import numpy as np
 
 __all__ = ["polars", "use_polars", "parse_block", "write_table"]
 
+_IMPORT_LOCK = threading.Lock()
 _STATE = {"module": None, "tried": False, "enabled": os.environ.get("TORCHQUAT_POLARS", "1") != "0"}
 
 
@@ -31,12 +33,16 @@ def polars():
     if not _STATE["enabled"]:
         return None
     if not _STATE["tried"]:
-        _STATE["tried"] = True
-        try:
-            import polars as module
-            _STATE["module"] = module
-        except Exception:  # not installed, or a broken install: the numpy path is always there
-            _STATE["module"] = None
+        # (the parsing thread and the writer ask at once: the second waits for the first's import,
+        # rather than reading "tried, no module" and taking the numpy path for its first chunk)
+        with _IMPORT_LOCK:
+            if not _STATE["tried"]:
+                try:
+                    import polars as module
+                    _STATE["module"] = module
+                except Exception:  # not installed, or a broken install: the numpy path is always there
+                    _STATE["module"] = None
+                _STATE["tried"] = True
     return _STATE["module"]
 
 

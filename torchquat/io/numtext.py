@@ -98,7 +98,8 @@ def _significant(a: np.ndarray, single: bool):
         rest = fraction * 1e9
     low_digits = precision - high_digits
     unit_scale = _POW_HI[precision - 1 - exp10 + _POW_OFFSET]
-    radius = _rounding_half_width(a) * unit_scale - _MARGIN
+    # (a float32's rounding interval, not its float64 copy's: else 0.6305f needs 9 digits)
+    radius = _rounding_half_width(a.astype(np.float32) if single else a) * unit_scale - _MARGIN
     low = np.rint(rest)
     chosen = np.zeros(a.shape, dtype=bool)
     for shorter in (100.0, 10.0):

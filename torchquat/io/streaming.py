@@ -20,7 +20,7 @@ from .poses import PoseFileError, Poses
 from .textparse import decimal_seconds_to_ns
 
 __all__ = ["read_poses", "iter_poses", "write_poses", "convert_file", "detect_format", "output_plan",
-           "atomic_output", "read_times", "FORMATS", "POSE_FORMATS", "PLAIN_TARGETS", "DEFAULT_CHUNK_SIZE"]
+           "atomic_output", "output_folder_problem", "read_times", "FORMATS", "POSE_FORMATS", "PLAIN_TARGETS", "DEFAULT_CHUNK_SIZE"]
 
 READ_AHEAD = True  # convert_file parses the next chunk in a thread while this one is converted and written
 DEFAULT_CHUNK_SIZE = 10_000  # small chunks keep numpy temporaries in reused heap memory (measured: less CPU, RSS)
@@ -266,6 +266,20 @@ def _concatenate(chunks) -> Poses:
                  join([c.positions for c in chunks], torch.cat),
                  join([c.timestamps for c in chunks], np.concatenate),
                  join([c.timestamps_ns for c in chunks], np.concatenate))
+
+
+def output_folder_problem(path: PathLike) -> Optional[str]:
+    """Why a file cannot be written at ``path`` (its folder is missing or read-only, or ``path`` is
+    a folder), or ``None``: for commands to refuse before a long run rather than fail after it."""
+    path = os.fspath(path)
+    directory = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(directory):
+        return f"{path}: no such folder {directory}"
+    if os.path.isdir(path):
+        return f"{path} is a folder"
+    if not os.access(directory, os.W_OK):
+        return f"{path}: the folder {directory} is not writable"
+    return None
 
 
 @contextmanager

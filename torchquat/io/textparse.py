@@ -197,11 +197,17 @@ def lines_text(line: bytes, limit: int = 80) -> str:
 def _diagnose(path, data: List[bytes], numbers: np.ndarray, columns: Sequence[int], describe: str,
               delimiter: Optional[bytes]) -> None:
     """Find the first line that does not parse and raise a :class:`PoseFileError` for it."""
-    expected = " or ".join(str(c) for c in sorted(columns))
+    expected = " or ".join(str(c) for c in sorted(columns)) if len(columns) < 4 else f"{min(columns)} or more"
+    width = None
     for line, number in zip(data, numbers):
         fields = _split(line, delimiter)
         if len(fields) not in columns:
             raise PoseFileError(path, f"expected {expected} numbers ({describe}), found {len(fields)}: "
+                                f"{lines_text(line)!r}", int(number))
+        if width is None:
+            width, first = len(fields), int(number)
+        elif len(fields) != width:  # (each count allowed, but a table has one width)
+            raise PoseFileError(path, f"expected {width} numbers as on line {first}, found {len(fields)}: "
                                 f"{lines_text(line)!r}", int(number))
         for field in fields:
             try:
