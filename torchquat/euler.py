@@ -341,12 +341,25 @@ def euler_to_matrix(angles: Tensor, convention: str, degrees: bool = False) -> T
 
 @kernel(blocked_row_dims=(1,))
 def quat_to_euler_unchecked(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
-    if planar(q, 4, QUAT_TO_EULER_PLANAR_SHARE):
+    path = _quat_euler_path(q)
+    if path == "planar":
         return closed_form.apply(QUAT_TO_EULER_PLANAR, q, convention=convention, eps=eps)
-    if not is_small(q, 4, share=0.25):  # crossover measured near 1000 rows
+    if path == "columnwise":
         forms, abcd2 = _quat_columnwise_forms(q, convention)
         return angles_columnwise(forms, convention, eps, abcd2)
     return euler_angles(q, convention, eps, is_matrix=False)
+
+
+def _quat_euler_path(q: Tensor) -> str:
+    """Which forms quat -> Euler computes (and :func:`euler_gimbal_lock` with it)."""
+    if planar(q, 4, QUAT_TO_EULER_PLANAR_SHARE):
+        return "planar"
+    return "small" if is_small(q, 4, share=0.25) else "columnwise"  # crossover measured near 1000 rows
+
+
+def _matrix_euler_small(R: Tensor) -> bool:
+    """Whether matrix -> Euler (and :func:`euler_gimbal_lock` with it) takes the small batches' forms."""
+    return is_small(R, 9, share=0.25, gpu_share=4)  # crossover measured near 1000 rows (with the closed-form backward)
 
 
 def _quat_columnwise_forms(q: Tensor, convention: EulerConvention):
@@ -369,9 +382,10 @@ def _quat_columnwise_forms(q: Tensor, convention: EulerConvention):
 # same batch (size, device, compiled or not, blocks), so the same forms, test and rows.
 @kernel(blocked_row_dims=(1,))
 def quat_gimbal_lock_unchecked(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
-    if planar(q, 4, QUAT_TO_EULER_PLANAR_SHARE):
+    path = _quat_euler_path(q)
+    if path == "planar":
         return quat_lock_planar(q, convention, eps)
-    if not is_small(q, 4, share=0.25):
+    if path == "columnwise":
         forms, abcd2 = _quat_columnwise_forms(q, convention)
         return angles_parts(forms, convention, eps, abcd2)[1][LOCKED]
     return lock(quat_layout(q, convention), eps)[1]
@@ -379,7 +393,7 @@ def quat_gimbal_lock_unchecked(q: Tensor, convention: EulerConvention, eps: floa
 
 @kernel(blocked_row_dims=(2,))
 def matrix_gimbal_lock_unchecked(R: Tensor, convention: EulerConvention, eps: float) -> Tensor:
-    if not is_small(R, 9, share=0.25, gpu_share=4):
+    if not _matrix_euler_small(R):
         return matrix_lock_columnwise(R, convention, eps)
     return lock(matrix_layout(R, convention), eps)[1]
 
@@ -416,7 +430,7 @@ def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Option
 
 @kernel(blocked_row_dims=(2,))
 def matrix_to_euler_unchecked(R: Tensor, convention: EulerConvention, eps: float) -> Tensor:
-    if not is_small(R, 9, share=0.25, gpu_share=4):  # crossover measured near 1000 rows (with the closed-form backward)
+    if not _matrix_euler_small(R):
         if torch.compiler.is_compiling():
             return matrix_to_euler_columnwise(R, convention, eps)
         return closed_form.apply(MATRIX_TO_EULER_COLUMNWISE, R, convention=convention, eps=eps)
