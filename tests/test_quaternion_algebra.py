@@ -34,6 +34,15 @@ def test_inverse_and_conjugate():
     assert (tq.quat_to_matrix(tq.quat_conjugate(u)) - tq.quat_to_matrix(u).mT).abs().max() <= 1e-15
 
 
+@pytest.mark.parametrize("dtype, scales", [(torch.float32, (1e20, 1e-20, 3e38, 1e-36)),
+                                           (torch.float64, (1e160, 1e-160, 1e308, 1e-300))], ids=["float32", "float64"])
+def test_normalize_takes_norms_whose_squares_overflow_or_underflow(dtype, scales):
+    # the README's cure for such quaternions: |q|^2 is inf or 0 for them, the direction is not
+    u = tq.quat_normalize(torch.randn(50, 4, dtype=torch.float64)).to(dtype)
+    for scale in scales:
+        torch.testing.assert_close(tq.quat_normalize(u * scale), u, rtol=0, atol=4 * torch.finfo(dtype).eps)
+
+
 def test_non_unit_quaternions_are_the_rotation_of_their_direction():
     q = torch.randn(50, 4, dtype=F64) * 7
     u = q / q.norm(dim=-1, keepdim=True)

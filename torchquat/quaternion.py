@@ -140,6 +140,10 @@ def quat_inverse(q: Tensor) -> Tensor:
 def quat_normalize(q: Tensor) -> Tensor:
     """Scale to unit norm; the zero quaternion gives NaN (no rotation is plausible for it).
 
+    Any finite norm works, even where ``|q|^2`` would overflow or underflow (1e20 or 1e-20 in
+    float32): ``q`` is first divided by its largest ``|component|``. So this is the cure for
+    quaternions whose norm the other functions' squares cannot take.
+
     Shape:
         ``(..., 4)`` -> ``(..., 4)``.
 
@@ -148,7 +152,7 @@ def quat_normalize(q: Tensor) -> Tensor:
         tensor([1., 0., 0., 0.])
     """
     q, dtype = prepare(q, "quat_normalize", "q", (4,))
-    return restore(normalized(q), dtype)
+    return restore(normalized(q / q.abs().amax(-1, keepdim=True)), dtype)  # (0 / 0: NaN for q = 0)
 
 
 def normalized(q: Tensor) -> Tensor:
