@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from torchquat.io import Poses, write_poses
+from torchquat.io import Poses, fastpath, write_poses
 
 OUT = Path(__file__).resolve().parent / "data" / "sample_trajectory.tum"
 
@@ -35,6 +35,7 @@ def make_trajectory(n: int = 500, rate_hz: float = 20.0) -> Poses:
 
 def main() -> None:
     OUT.parent.mkdir(parents=True, exist_ok=True)
+    fastpath.use_polars(False)  # (polars writes the same values in its own layout: 0.0 for 0)
     rows = write_poses(OUT, make_trajectory(), format="tum")
     print(f"wrote {rows} poses to {OUT}")
 

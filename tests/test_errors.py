@@ -23,6 +23,7 @@ import torchquat as tq
     (tq.quat_inverse, (3,), "quat_inverse: expected q of shape (..., 4), got (3,)"),
     (tq.quat_wxyz_to_xyzw, (3,), "quat_wxyz_to_xyzw: expected q of shape (..., 4), got (3,)"),
     (tq.quat_from_jpl, (3,), "quat_from_jpl: expected q of shape (..., 4), got (3,)"),
+    (lambda q: tq.euler_gimbal_lock(q, "ZYX"), (5,), "euler_gimbal_lock: expected q of shape (..., 4) or (..., 3, 3), got (5,)"),
 ])
 def test_wrong_trailing_shape_raises_shape_error(fn, shape, message):
     with pytest.raises(tq.ShapeError) as err:

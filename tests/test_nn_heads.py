@@ -24,8 +24,10 @@ def as_matrix(y, output):
 
 @pytest.mark.parametrize("output", OUTPUTS)
 @pytest.mark.parametrize("rep", REPS)
-@pytest.mark.parametrize("scale", [0.0, 1e-6, 1.0, 1e6], ids=lambda s: f"scale={s:g}")
+@pytest.mark.parametrize("scale", [0.0, 1e-6, 1.0, 1e6, 1e25], ids=lambda s: f"scale={s:g}")
 def test_head_outputs_orthonormal_det_one(rep, output, scale):
+    if rep == "axis_angle" and scale > 1e18:
+        pytest.skip("documented: a rotation angle of 1e19 rad or more overflows its square in float32")
     head = make_head(rep, output)
     x = torch.randn(64, IN, generator=torch.Generator().manual_seed(2)) * scale
     with torch.no_grad():

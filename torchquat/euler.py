@@ -29,6 +29,7 @@ from ._math import HALF_IDENTITY, bilinear, bilinear_terms, combine, constant, c
 from ._planes import columns, planar, plane_buffer, rows, slot
 from ._validation import prepare, restore
 from .conventions import EULER_CONVENTIONS, EulerConvention, gimbal_eps, parse_convention
+from .errors import ShapeError
 from .matrix import quat_to_matrix_unchecked
 from .quaternion import basis_product
 
@@ -498,6 +499,10 @@ def euler_gimbal_lock(q: Tensor, convention: str, eps: Optional[float] = None) -
     """
     conv = parse_convention(convention, "euler_gimbal_lock")
     is_matrix = isinstance(q, Tensor) and q.dim() >= 2 and tuple(q.shape[-2:]) == (3, 3)
-    x, _ = prepare(q, "euler_gimbal_lock", "q", (3, 3) if is_matrix else (4,))
+    try:
+        x, _ = prepare(q, "euler_gimbal_lock", "q", (3, 3) if is_matrix else (4,))
+    except ShapeError:
+        raise ShapeError("euler_gimbal_lock: expected q of shape (..., 4) or (..., 3, 3), "
+                         f"got {tuple(torch.as_tensor(q).shape)}") from None
     eps = gimbal_eps(x.dtype) if eps is None else float(eps)
     return (matrix_gimbal_lock_unchecked if is_matrix else quat_gimbal_lock_unchecked)(x, convention=conv, eps=eps)

@@ -2,6 +2,7 @@
 
 from typing import Optional
 
+import torch
 from torch import Tensor, nn
 
 from ..errors import ShapeError
@@ -36,8 +37,10 @@ class RotationHead(nn.Module):
     ================  ====  ==================================================================
 
     Parameters keep ``nn.Linear``'s default initialisation (no bias towards the identity), so an
-    untrained head outputs scattered rotations. Features of any magnitude give orthonormal
-    matrices with det +1; NaN or inf features give NaN rotations (never an exception).
+    untrained head outputs scattered rotations. Features of any finite magnitude give orthonormal
+    matrices with det +1 (``"axis_angle"``: while the rotation angle, the output's norm, stays
+    below about 1e19, where its square overflows in float32); NaN or inf features give NaN
+    rotations (never an exception).
 
     Args:
         in_features: size of the last dimension of the input features.
@@ -103,6 +106,11 @@ class RotationHead(nn.Module):
         return self._to_rotation(y)
 
     def _to_rotation(self, y: Tensor) -> Tensor:
+        if self.representation in ("rot6d", "quat"):  # scale-invariant: scaled by a power of 2
+            # (exact: the same rotation bits) to a largest |entry| in [0.5, 1), no square overflows;
+            # a constant for autograd, whose gradient through the scale is 0 anyway
+            exponent = torch.frexp(y.detach().abs().amax(-1, keepdim=True)).exponent.to(y.dtype)
+            y = y * torch.exp2(-exponent)  # (not torch.ldexp: its gradient to y is 0 in torch 2.13)
         if self.representation == "quat" and self.output == "quat":
             y = quat_normalize(y)  # quat -> matrix accepts any non-zero quaternion as it is
         return convert(y, self.representation, self.output, convention=self.convention)
