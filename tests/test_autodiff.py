@@ -52,3 +52,44 @@ def test_rot9d_gradient_matches_finite_differences_at_a_rotation():
     # a rotation input has three equal singular values: where autograd through svd is NaN
     R = tq.quat_to_matrix(tq.random_quat(2, generator=torch.Generator().manual_seed(2), dtype=torch.float64))
     assert torch.autograd.gradcheck(tq.rot9d_to_matrix, (R.clone().requires_grad_(),), eps=1e-6, atol=1e-7)
+
+
+@pytest.mark.parametrize("name", ["quat_multiply", "quat_rotate", "quat_geodesic_distance", "matrix_geodesic_distance",
+                                  "quat_slerp"])
+@pytest.mark.parametrize("rows", [1, 40_000], ids=["small", "large"])
+def test_create_graph_gives_the_same_gradient_when_one_input_comes_from_the_other(name, rows):
+    # With create_graph the closed forms re-differentiate their plain forward; each input's
+    # partial derivative must stay its own (the same tensor twice, or b computed from a).
+    fn, generic, _ = ALL[name]
+    a = generic()[0]
+    a = a.repeat((-(-rows // a.shape[0]),) + (1,) * (a.dim() - 1))[:rows].clone().requires_grad_()
+    second = (lambda x: x[..., 1:]) if name == "quat_rotate" else (lambda x: x)  # (rotate: a vector)
+    for b_of_a in (lambda a: second(a), lambda a: second(0.5 * a + 0.1)):
+        def loss():
+            out = fn(a, b_of_a(a))
+            return (out * torch.linspace(0.5, 1.5, out.numel(), dtype=a.dtype).view(out.shape)).sum()
+        plain, = torch.autograd.grad(loss(), a)
+        graphed, = torch.autograd.grad(loss(), a, create_graph=True)
+        torch.testing.assert_close(graphed, plain, rtol=0, atol=1e-12)
+
+
+def test_double_backward_hessian_equals_torch_func_hessian_with_related_inputs():
+    q = tq.random_quat(1, generator=torch.Generator().manual_seed(3), dtype=torch.float64)[0]
+    shift = torch.tensor([0.1, 0.2, 0.0, 0.3], dtype=torch.float64)
+    f = lambda q: tq.quat_geodesic_distance(q, 0.5 * q + shift)
+    x = q.clone().requires_grad_()
+    (g,) = torch.autograd.grad(f(x), x, create_graph=True)
+    H = torch.stack([torch.autograd.grad(g[i], x, retain_graph=True)[0] for i in range(4)])
+    torch.testing.assert_close(H, torch.func.hessian(f)(q), rtol=0, atol=1e-10)
+
+
+def test_rot9d_forward_mode_matches_reverse_mode_and_finite_differences():
+    x = torch.randn(5, 9, dtype=torch.float64, generator=torch.Generator().manual_seed(4))
+    t = torch.randn(5, 9, dtype=torch.float64, generator=torch.Generator().manual_seed(5))
+    _, tangent = torch.func.jvp(tq.rot9d_to_matrix, (x,), (t,))
+    J = torch.func.vmap(torch.func.jacrev(tq.rot9d_to_matrix))(x)  # the closed-form backward
+    torch.testing.assert_close(tangent, (J * t[:, None, None, :]).sum(-1), rtol=0, atol=1e-12)
+    fd = (tq.rot9d_to_matrix(x + 1e-6 * t) - tq.rot9d_to_matrix(x - 1e-6 * t)) / 2e-6
+    torch.testing.assert_close(tangent, fd, rtol=0, atol=1e-8)
+    R = tq.quat_to_matrix(tq.random_quat(3, dtype=torch.float64)).flatten(-2)  # equal singular values
+    assert torch.isfinite(torch.func.jvp(tq.rot9d_to_matrix, (R,), (torch.ones_like(R),))[1]).all()

@@ -81,6 +81,42 @@ def test_vmap_matches_the_batched_call(name):
     assert torch.allclose(torch.func.vmap(fn)(*inputs), fn(*inputs), atol=1e-12, rtol=0)
 
 
+@pytest.mark.parametrize("name", NAMES)
+def test_per_sample_jacobians_by_vmap_of_jacrev_and_jacfwd(name):
+    # vmap over jacrev / jacfwd (per-sample Jacobians) equals the diagonal blocks of jacrev of the batch
+    fn, generic, _ = ALL[name]
+    inputs = tuple(x[:3] for x in generic())
+    argnums = tuple(range(len(inputs)))
+    out_dims = fn(*inputs).dim() - 1
+    batched = torch.func.jacrev(fn, argnums=argnums)(*inputs)  # each (3, out row, 3, in row)
+    for transform in (torch.func.jacrev, torch.func.jacfwd):
+        per_sample = torch.func.vmap(transform(fn, argnums=argnums))(*inputs)
+        for row_jacobians, J in zip(per_sample, batched):
+            for i in range(3):
+                torch.testing.assert_close(row_jacobians[i], J[i][(slice(None),) * out_dims + (i,)])
+
+
+def test_first_use_under_inference_mode_or_torch_func_does_not_break_later_calls(monkeypatch):
+    # Constant tables are cached on first use: one built under inference_mode must not be an
+    # inference tensor (training would fail to save it), nor one built under torch.func a
+    # wrapped tensor (later transforms would fail).
+    from torchquat import _math
+    q = tq.random_quat(3, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    R = tq.quat_to_matrix(q)
+    monkeypatch.setattr(_math, "_CONSTANTS", {})
+    with torch.inference_mode():
+        tq.matrix_to_quat(R), tq.quat_rotate(q, R[..., 0]), tq.matrix_geodesic_distance(R, R.flip(0))
+    for fn, x in ((tq.matrix_to_quat, R), (lambda v: tq.quat_rotate(q, v), R[..., 0]),
+                  (lambda M: tq.matrix_geodesic_distance(M, R.flip(0)), R)):
+        x = x.clone().requires_grad_()
+        assert torch.isfinite(torch.autograd.grad(fn(x).sum(), x)[0]).all()
+    monkeypatch.setattr(_math, "_CONSTANTS", {})
+    f = lambda x: tq.quat_to_euler(x, "ZYX")
+    H = torch.func.hessian(f)(q[0])
+    assert torch.isfinite(H).all()
+    torch.testing.assert_close(torch.func.jacrev(f)(q[0]), torch.func.jacfwd(f)(q[0]))
+
+
 @pytest.mark.parametrize("dtype", [torch.float16, torch.bfloat16, torch.float32])
 @pytest.mark.parametrize("name", NAMES)
 def test_low_precision_is_computed_in_float32_and_returned_in_its_dtype(name, dtype):
@@ -130,3 +166,17 @@ def test_autocast_does_not_lower_the_precision(name):
     assert out.dtype == torch.float32
     assert torch.allclose(out, expected, atol=1e-6, rtol=0)
     assert all(torch.isfinite(g).all() for g in grads)
+
+
+@pytest.mark.parametrize("src, dst", [("matrix", "matrix"), ("matrix", "rot9d"), ("quat", "quat"), ("rot9d", "rot9d"),
+                                      ("quat_xyzw", "quat")])
+def test_convert_within_a_representation_returns_a_fresh_tensor(src, dst):
+    # (matrix -> matrix used to hand back R itself, and matrix -> rot9d a view of it)
+    x = tq.convert(tq.random_quat(4, generator=torch.Generator().manual_seed(0)), "quat", src).requires_grad_()
+    with torch.no_grad():
+        out = tq.convert(x, src, dst)
+    assert out.untyped_storage().data_ptr() != x.untyped_storage().data_ptr()
+    assert not out.requires_grad
+    before = x.detach().clone()
+    out.view(-1)[0] = 7.0
+    assert torch.equal(x.detach(), before)

@@ -75,6 +75,10 @@ class _ClosedForm(torch.autograd.Function):
         inputs, saved = tensors[:ctx.n_inputs], tensors[ctx.n_inputs:]
         wanted = ctx.needs_input_grad[2:]
         if torch.is_grad_enabled():  # a graph of the gradient was asked for: differentiate the plain forward
+            # of views of the inputs: the partial derivatives, connected to the inputs' graphs. (Of
+            # the inputs themselves, an input computed from another, or the same tensor twice,
+            # would add the path through the other to its own derivative.)
+            inputs = [x.view_as(x) for x in inputs]
             output = ctx.rule.plain(*inputs, **ctx.options)
             targets = [x for x, w in zip(inputs, wanted) if w]
             found = iter(torch.autograd.grad(output, targets, grad, create_graph=True, allow_unused=True))

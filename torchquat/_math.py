@@ -5,6 +5,8 @@ import math
 import torch
 from torch import Tensor
 
+from ._closed_form import _transformed
+
 
 def safe_sqrt(x2: Tensor) -> Tensor:
     """``sqrt(x2)`` whose gradient is 0 (not NaN or inf) where ``x2 == 0``; NaN stays NaN.
@@ -138,7 +140,10 @@ def constant(name: str, values, like: Tensor, dtype=None) -> Tensor:
     key = (name, dtype) if like.is_cpu else (name, dtype, like.device)  # (reading .device costs 0.2 us)
     table = _CONSTANTS.get(key)
     if table is None:
-        table = _CONSTANTS[key] = torch.tensor(values, dtype=dtype, device=like.device)
+        if _transformed():  # (a factory call under torch.func can return a wrapped tensor: not cached)
+            return torch.tensor(values, dtype=dtype, device=like.device)
+        with torch.inference_mode(False):  # (an inference tensor cached would break later training)
+            table = _CONSTANTS[key] = torch.tensor(values, dtype=dtype, device=like.device)
     return table
 
 

@@ -150,10 +150,16 @@ def _shepperd_tables():
 _SHEPPERD, _SHEPPERD_OFFSET, _SHEPPERD_ROWS = _shepperd_tables()
 
 
+def _lookup(table: Tensor, index: Tensor) -> Tensor:
+    """``table[index]`` as ``index_select`` (``torch.func.vmap`` has a rule for it; for a batched
+    index under ``vmap(jacrev)``, advanced indexing has none)."""
+    return table.index_select(0, index.reshape(-1)).view(index.shape + table.shape[1:])
+
+
 def _shepperd_parts(R: Tensor):
     vals = contract(R.flatten(-2), "shepperd", _SHEPPERD) + constant("shepperd_offset", _SHEPPERD_OFFSET, R)
     best = vals[..., :4].argmax(-1)
-    row = vals.gather(-1, constant("shepperd_rows", _SHEPPERD_ROWS, best)[best])
+    row = vals.gather(-1, _lookup(constant("shepperd_rows", _SHEPPERD_ROWS, best), best))
     # Normalise and make it canonical (w >= 0; see standardize_sign) with one multiplication.
     scale = torch.rsqrt((row * row).sum(-1, keepdim=True)) * standardize_sign(row)
     return row * scale, best, scale
@@ -170,7 +176,7 @@ _SHEPPERD_ROW_JACOBIANS = [[[_SHEPPERD[m][k] for k in rows] for m in range(9)] f
 def _matrix_to_quat_with_jacobian(R: Tensor):
     q, best, scale = _shepperd_parts(R)
     # q = row s with s = sign / |row|: dq = s (I - q q^T) d row, and d row / dR is a table lookup
-    d_row = constant("shepperd_row_jacobians", _SHEPPERD_ROW_JACOBIANS, R)[best]  # (..., 9, 4)
+    d_row = _lookup(constant("shepperd_row_jacobians", _SHEPPERD_ROW_JACOBIANS, R), best)  # (..., 9, 4)
     along_q = (d_row * q.unsqueeze(-2)).sum(-1, keepdim=True)
     return q, torch.addcmul(d_row, along_q, q.unsqueeze(-2), value=-1.0) * scale.unsqueeze(-1)
 

@@ -63,6 +63,10 @@ def _identity(x: Tensor, _opts: Options) -> Tensor:
     return x
 
 
+def _flattened(R: Tensor, _opts: Options) -> Tensor:
+    return R.flatten(-2)
+
+
 REPRESENTATIONS: Dict[str, Representation] = {r.name: r for r in (
     Representation("quat", (4,), "quat", _identity, _standardized,
                    "quaternion (w, x, y, z), returned with w >= 0"),
@@ -77,7 +81,7 @@ REPRESENTATIONS: Dict[str, Representation] = {r.name: r for r in (
     Representation("rot6d", (6,), "matrix", lambda x, o: rot6d_to_matrix_unchecked(x),
                    lambda R, o: matrix_to_rot6d_unchecked(R), "first two columns of R (Zhou et al. 2019)"),
     Representation("rot9d", (9,), "matrix", lambda x, o: rot9d_to_matrix_unchecked(x.unflatten(-1, (3, 3))),
-                   lambda R, o: R.flatten(-2), "any 3x3 matrix row-major, projected by SVD (Levinson et al. 2020)"),
+                   _flattened, "any 3x3 matrix row-major, projected by SVD (Levinson et al. 2020)"),
 )}
 
 _HUB_TO_HUB = {("quat", "matrix"): quat_to_matrix_unchecked, ("matrix", "quat"): matrix_to_quat_unchecked}
@@ -143,4 +147,7 @@ def convert(x: Tensor, src: str, dst: str, *, convention: Optional[str] = None, 
     hub = src_rep.to_hub(x, Options(src_conv, degrees, eps))
     if src_rep.hub != dst_rep.hub:
         hub = _HUB_TO_HUB[(src_rep.hub, dst_rep.hub)](hub)
-    return restore(dst_rep.from_hub(hub, Options(dst_conv, degrees, eps)), dtype)
+    out = dst_rep.from_hub(hub, Options(dst_conv, degrees, eps))
+    if src_rep.to_hub is _identity and dst_rep.from_hub in (_identity, _flattened):
+        out = out.clone()  # (matrix -> matrix or rot9d: x itself or a view of it; outputs are fresh)
+    return restore(out, dtype)

@@ -6,7 +6,7 @@ import torch
 from torch import Tensor
 
 from . import _closed_form as closed_form
-from ._closed_form import Rule
+from ._closed_form import Rule, _transformed
 from ._dispatch import kernel
 from ._math import constant, is_small, matmul3, sum_of_squares
 from ._planes import columns, plane_buffer, rows, slot
@@ -182,7 +182,8 @@ class _SpecialProcrustes(torch.autograd.Function):
     projection itself only depends on ``s_i + s_j``: with ``M = U' S' V^T`` (``U' = U D``,
     ``S' = D S``), ``dR = R Omega`` where ``(V^T Omega V)_ij (s'_i + s'_j) = (X - X^T)_ij`` and
     ``X = U'^T dM V``. Its adjoint is ``grad_M = U' Z V^T`` with
-    ``Z_ij = (Y_ij - Y_ji) / (s'_i + s'_j)``, ``Y = U'^T grad_R V``. Once differentiable.
+    ``Z_ij = (Y_ij - Y_ji) / (s'_i + s'_j)``, ``Y = U'^T grad_R V``. Once differentiable; forward
+    mode (``jvp``) is ``dR = U' W V^T``, ``W_ij = (X_ij - X_ji) / (s'_i + s'_j)``.
     """
 
     generate_vmap_rule = True
@@ -199,18 +200,34 @@ class _SpecialProcrustes(torch.autograd.Function):
     def setup_context(ctx, inputs, output):
         _, U_signed, S_signed, Vh = output
         ctx.save_for_backward(U_signed, S_signed, Vh)
+        ctx.save_for_forward(U_signed, S_signed, Vh)
         ctx.mark_non_differentiable(U_signed, S_signed, Vh)
 
     @staticmethod
     @torch.autograd.function.once_differentiable
     def backward(ctx, grad_R, _gu, _gs, _gv):
         U, S, Vh = ctx.saved_tensors
-        Y = matmul3(matmul3(U.mT, grad_R), Vh.mT)
-        denom = S.unsqueeze(-1) + S.unsqueeze(-2)
-        tiny = torch.finfo(S.dtype).eps
-        denom = torch.where(denom.abs() < tiny, tiny, denom)  # rank <= 1: any finite value
-        Z = (Y - Y.mT) / denom
-        return matmul3(matmul3(U, Z), Vh)
+        return matmul3(matmul3(U, _skew_over_sums(matmul3(matmul3(U.mT, grad_R), Vh.mT), S)), Vh)
+
+
+
+class _SpecialProcrustesForwardMode(_SpecialProcrustes):
+    """The same, with forward mode (``torch.func.jvp``, ``jacfwd``, dual tensors): used only under
+    those transforms, since dynamo cannot trace a Function that defines ``jvp``."""
+
+    @staticmethod
+    def jvp(ctx, tangent_M):
+        U, S, Vh = ctx.saved_tensors
+        W = _skew_over_sums(matmul3(matmul3(U.mT, tangent_M), Vh.mT), S)
+        return matmul3(matmul3(U, W), Vh), None, None, None
+
+
+def _skew_over_sums(Y: Tensor, S: Tensor) -> Tensor:
+    """``(Y_ij - Y_ji) / (s_i + s_j)``: the backward's ``Z`` and the forward mode's ``W``."""
+    denom = S.unsqueeze(-1) + S.unsqueeze(-2)
+    tiny = torch.finfo(S.dtype).eps
+    denom = torch.where(denom.abs() < tiny, tiny, denom)  # rank <= 1: any finite value
+    return (Y - Y.mT) / denom
 
 
 @kernel
@@ -218,7 +235,8 @@ def rot9d_to_matrix_unchecked(M: Tensor) -> Tensor:
     # LAPACK's SVD raises on NaN/inf: give such rows the identity, then NaN, never a crash.
     finite = torch.isfinite(M).all(-1, keepdim=True).all(-2, keepdim=True)
     eye = torch.eye(3, dtype=M.dtype, device=M.device)
-    R = _SpecialProcrustes.apply(torch.where(finite, M, eye))[0]
+    projection = _SpecialProcrustesForwardMode if _transformed() else _SpecialProcrustes
+    R = projection.apply(torch.where(finite, M, eye))[0]
     return torch.where(finite, R, torch.nan)
 
 
