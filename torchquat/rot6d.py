@@ -210,7 +210,6 @@ class _SpecialProcrustes(torch.autograd.Function):
         return matmul3(matmul3(U, _skew_over_sums(matmul3(matmul3(U.mT, grad_R), Vh.mT), S)), Vh)
 
 
-
 class _SpecialProcrustesForwardMode(_SpecialProcrustes):
     """The same, with forward mode (``torch.func.jvp``, ``jacfwd``, dual tensors): used only under
     those transforms, since dynamo cannot trace a Function that defines ``jvp``."""
