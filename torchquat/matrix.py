@@ -163,7 +163,7 @@ def _shepperd_parts(R: Tensor):
     best = vals[..., :4].argmax(-1)
     row = vals.gather(-1, _lookup(constant("shepperd_rows", _SHEPPERD_ROWS, best), best))
     # Normalise and make it canonical (w >= 0; see standardize_sign) with one multiplication.
-    scale = torch.rsqrt((row * row).sum(-1, keepdim=True)) * standardize_sign(row)
+    scale = standardize_sign(row, torch.rsqrt((row * row).sum(-1, keepdim=True)))
     return row * scale, best, scale
 
 

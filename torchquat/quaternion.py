@@ -7,7 +7,7 @@ a quaternion from another representation standardise to ``w >= 0``.
 
 import math
 import numbers
-from typing import Sequence, Union
+from typing import Optional, Sequence, Union
 
 import torch
 from torch import Tensor
@@ -160,8 +160,9 @@ def normalized(q: Tensor) -> Tensor:
     return q * torch.rsqrt((q * q).sum(-1, keepdim=True))
 
 
-def standardize_sign(q: Tensor) -> Tensor:
-    """Unchecked: the sign (+-1, shape ``(..., 1)``) that makes ``q`` canonical.
+def standardize_sign(q: Tensor, magnitude: Optional[Tensor] = None) -> Tensor:
+    """Unchecked: the sign (+-1, shape ``(..., 1)``) that makes ``q`` canonical, or ``magnitude``
+    (broadcasting with ``(..., 1)``) with that sign.
 
     Canonical means ``w > 0``, or ``w == 0`` and the first non-zero of ``x, y, z`` positive,
     so that every rotation has exactly one representative (SciPy's canonical form).
@@ -169,7 +170,8 @@ def standardize_sign(q: Tensor) -> Tensor:
     # sign(8 sign(w) + 4 sign(x) + 2 sign(y) + sign(z)) is the sign of the first non-zero
     # component (each weight exceeds the sum of the later ones): 3 ops instead of nested wheres.
     key = contract(torch.sign(q), "lexicographic", [8.0, 4.0, 2.0, 1.0])
-    return torch.copysign(constant("one", 1.0, q), key.unsqueeze(-1))  # key = +0 only for q = 0
+    return torch.copysign(constant("one", 1.0, q) if magnitude is None else magnitude,
+                          key.unsqueeze(-1))  # key = +0 only for q = 0
 
 
 @kernel
