@@ -54,3 +54,18 @@ def test_every_convention_and_dtype_gets_its_own_graph_without_hitting_the_recom
             assert torch.isfinite(out).all()
     assert torch.isfinite(tq.quat_to_euler(q[:1], "ZYX")).all()  # size 1 is a second graph of the same kernel
     assert len(dispatch._compiled) == 48  # 24 conventions x the two default eps (float32, float64)
+
+
+def test_compiled_quat_distance_of_a_zero_quaternion_has_a_nan_gradient_as_eager(compiled, monkeypatch):
+    # The compiled formula's NaN for a zero quaternion must reach the gradient too (a where's NaN
+    # branch passed none: the row's gradient was 0, a NaN loss with a silent zero step)
+    import torchquat._dispatch as dispatch
+    monkeypatch.setattr(dispatch, "_backend", "eager")  # (the formula, traced; inductor gives the same)
+    monkeypatch.setattr(dispatch, "_compiled", {})
+    q1 = torch.tensor([[0.0, 0, 0, 0], [1, 0, 0, 0], [0.6, 0.8, 0, 0]], dtype=torch.float64)
+    q2 = torch.tensor([[0.0, 0, 0, 0], [0, 0, 0, 0], [1, 0, 0, 0]], dtype=torch.float64)
+    out, grads, ref, ref_grads = compiled_against_eager(tq.quat_geodesic_distance, (q1, q2))
+    torch.testing.assert_close(out, ref, equal_nan=True, rtol=0, atol=1e-15)
+    for g, ref_g in zip(grads, ref_grads):
+        assert torch.isnan(g[:2]).all() and torch.isnan(ref_g[:2]).all()
+        torch.testing.assert_close(g[2], ref_g[2], rtol=0, atol=1e-15)

@@ -95,8 +95,14 @@ def _quat_distance_columnwise_parts(q1: Tensor, q2: Tensor, safe: bool = False):
     wedge2 = minors[0] * minors[0]
     for m in minors[1:]:
         wedge2 = torch.addcmul(wedge2, m, m)
+    norms2 = torch.addcmul(wedge2, dot, dot)  # |q1|^2 |q2|^2: 0 only for a zero quaternion
     wedge = safe_sqrt(wedge2) if safe else torch.sqrt(wedge2)
-    distance = torch.where(torch.addcmul(wedge2, dot, dot) > 0, 2.0 * torch.atan2(wedge, dot.abs()), torch.nan)
+    angle = 2.0 * torch.atan2(wedge, dot.abs())
+    if safe:  # (under autograd: (n - n) / n is exactly 0, and its gradient too, for n > 0, and NaN
+        # for n = 0, value and gradient; a where's NaN branch would give that row a zero gradient)
+        distance = angle + (norms2 - norms2) / norms2
+    else:
+        distance = torch.where(norms2 > 0, angle, torch.nan)
     return distance, (dot, wedge, wedge2, *minors, *columns_a, *columns_b)
 
 
