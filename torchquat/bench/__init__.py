@@ -122,8 +122,9 @@ def run(args: argparse.Namespace) -> int:
     """Run the benchmark described by ``args`` (from :func:`add_arguments`); return the exit status."""
     ns: List[int] = list(getattr(args, "n", None) or [1, 1000, 1_000_000])
     json_path = getattr(args, "json", None)
-    if json_path and output_folder_problem(json_path):  # (before the run, not after it)
-        print(f"torchquat bench: --json {output_folder_problem(json_path)}", file=sys.stderr)
+    problem = json_path and output_folder_problem(json_path)  # (before the run, not after it)
+    if problem:
+        print(f"torchquat bench: --json {problem}", file=sys.stderr)
         return 2
     op_names = getattr(args, "ops", None) or [op.name for op in _ops.OPS]
     unknown = [name for name in op_names if name not in _ops.OPS_BY_NAME]

@@ -115,8 +115,9 @@ def run(args: argparse.Namespace) -> int:
     if args.n < 1:
         print(f"torchquat crosscheck: --n must be at least 1, got {args.n}", file=sys.stderr)
         return 2
-    if args.json and output_folder_problem(args.json):  # (before the run, not after it)
-        print(f"torchquat crosscheck: --json {output_folder_problem(args.json)}", file=sys.stderr)
+    problem = args.json and output_folder_problem(args.json)  # (before the run, not after it)
+    if problem:
+        print(f"torchquat crosscheck: --json {problem}", file=sys.stderr)
         return 2
     names = ("scipy", "pk") if args.oracle == "all" else (args.oracle,)
     dtype = torch.float64 if args.dtype == "float64" else torch.float32
