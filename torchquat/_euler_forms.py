@@ -164,6 +164,19 @@ def _dense_tables(name: str):
 DENSE = {name: _dense_tables(name) for name in EULER_CONVENTIONS}
 
 
+def _lock_test(forms, eps: float, abcd2, values: bool = True):
+    """t1's pair and ``Z`` divided by ``|abcd|^2`` when it is a tensor (a quaternion's; see
+    :func:`angles_parts`), the scale (or None), ``2h``, and the gimbal-lock mask ``2h <= sin(eps)``:
+    the test of the angles and, alone, of :func:`euler_gimbal_lock` (the same rows)."""
+    y1, x1, z = forms[0], forms[1], forms[6]
+    scale = None
+    if isinstance(abcd2, Tensor):
+        scale, abcd2 = abcd2, 1.0
+        y1, x1, z = y1 / scale, x1 / scale, z / scale
+    two_h = (torch.sqrt if values else safe_sqrt)(y1 * y1 + x1 * x1)
+    return y1, x1, z, scale, two_h, two_h <= abcd2 * math.sin(eps)  # sin(middle) <= sin(eps), as the small path
+
+
 def angles_parts(forms, conv: EulerConvention, eps: float, abcd2, out: Optional[Tensor] = None, values: bool = False):
     """The same angles as ``torchquat._euler_small``, written column by column with the tables'
     numbers as literals: for large batches (a handful of passes over 1-D columns instead of
@@ -182,12 +195,8 @@ def angles_parts(forms, conv: EulerConvention, eps: float, abcd2, out: Optional[
     ``values``: nothing will be differentiated, so the substitutions that keep autograd finite
     (``safe_sqrt``'s, and ``(0, 1)`` for t1's pair at lock) are left out: the same angles bit for
     bit, four passes fewer (and no parts for the backward)."""
-    y1, x1, y_zero, x_zero, y_pi, x_pi, z = forms
-    scale = None
-    if isinstance(abcd2, Tensor):
-        scale, abcd2 = abcd2, 1.0
-        y1, x1, z = y1 / scale, x1 / scale, z / scale
-    two_h = (torch.sqrt if values else safe_sqrt)(y1 * y1 + x1 * x1)
+    y_zero, x_zero, y_pi, x_pi = forms[2:6]
+    y1, x1, z, scale, two_h, locked = _lock_test(forms, eps, abcd2, values)
     near_zero = z >= 0 if conv.symmetric else z <= 0  # |ab| >= |cd|: the small path's test
     tb = forms_tables(conv.name)[3]
     if torch.compiler.is_compiling():  # (inductor's where is a branch-free blend)
@@ -205,7 +214,6 @@ def angles_parts(forms, conv: EulerConvention, eps: float, abcd2, out: Optional[
         def pick(if_near_zero, if_near_pi):
             return torch.lerp(if_near_pi, if_near_zero, weight)
         step = weight * (-2.0 * tb) + tb
-    locked = two_h <= abcd2 * math.sin(eps)  # sin(middle) <= sin(eps), as the small path
     final = (lambda i: None) if out is None else out.__getitem__  # (the last passes write into the buffer)
     if values:  # (at lock the discarded atan2 of about (0, 0) is any angle: no gradient to spoil;
         # strided columns are copied, as the wheres would: atan2's vectorised loop, the same bits)
@@ -231,8 +239,9 @@ def angles_parts(forms, conv: EulerConvention, eps: float, abcd2, out: Optional[
     return angles, (y1, x1, y1_used, x1_used, y_double, x_double, two_h, z, locked, weight, step, scale)
 
 
-LOCKED = 8
-"""Where the gimbal-lock mask sits in :func:`angles_parts`' parts."""
+def lock_columnwise(forms, eps: float, abcd2) -> Tensor:
+    """The gimbal-lock mask of :func:`angles_parts` on the same forms, without the angles."""
+    return _lock_test(forms, eps, abcd2)[-1]
 
 
 def angles_columnwise(forms, conv: EulerConvention, eps: float, abcd2, share: float = 1.0) -> Tensor:
@@ -301,7 +310,7 @@ def _quat_to_euler_planar_parts(q: Tensor, convention: EulerConvention, eps: flo
 def quat_lock_planar(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
     """The gimbal-lock mask of :data:`QUAT_TO_EULER_PLANAR`: the same forms and test, so the same rows."""
     _, forms, abcd2 = _quat_planar_forms(q, convention)
-    return angles_parts(forms, convention, eps, abcd2)[1][LOCKED]
+    return lock_columnwise(forms, eps, abcd2)
 
 
 def quat_to_euler_planar(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
@@ -348,7 +357,7 @@ def _matrix_columnwise_forms(R: Tensor, convention: EulerConvention):
 def matrix_lock_columnwise(R: Tensor, convention: EulerConvention, eps: float) -> Tensor:
     """The gimbal-lock mask of :data:`MATRIX_TO_EULER_COLUMNWISE`: the same forms and test."""
     forms, abcd2 = _matrix_columnwise_forms(R, convention)
-    return angles_parts(forms, convention, eps, abcd2)[1][LOCKED]
+    return lock_columnwise(forms, eps, abcd2)
 
 
 def _matrix_to_euler_columnwise_parts(R: Tensor, convention: EulerConvention, eps: float, values: bool = False):

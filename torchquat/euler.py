@@ -21,8 +21,8 @@ from torch import Tensor
 
 from . import _closed_form as closed_form
 from ._dispatch import kernel
-from ._euler_forms import (COLUMNWISE, LOCKED, MATRIX_TO_EULER_COLUMNWISE, PAIRS, QUAT_TO_EULER_PLANAR,
-                           QUAT_TO_EULER_PLANAR_SHARE, angles_columnwise, angles_parts, matrix_lock_columnwise,
+from ._euler_forms import (COLUMNWISE, MATRIX_TO_EULER_COLUMNWISE, PAIRS, QUAT_TO_EULER_PLANAR,
+                           QUAT_TO_EULER_PLANAR_SHARE, angles_columnwise, lock_columnwise, matrix_lock_columnwise,
                            matrix_to_euler_columnwise, quat_lock_planar)
 from ._euler_small import euler_angles, lock, matrix_layout, quat_layout
 from ._euler_rotations import (EULER_TO_MATRIX, EULER_TO_QUAT, EULER_TO_QUAT_COLUMNWISE, euler_to_matrix_small,
@@ -166,7 +166,7 @@ def quat_gimbal_lock_unchecked(q: Tensor, convention: EulerConvention, eps: floa
         return quat_lock_planar(q, convention, eps)
     if path == "columnwise":
         forms, abcd2 = _quat_columnwise_forms(q, convention)
-        return angles_parts(forms, convention, eps, abcd2)[1][LOCKED]
+        return lock_columnwise(forms, eps, abcd2)
     return lock(quat_layout(q, convention), eps)[1]
 
 
