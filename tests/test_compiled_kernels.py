@@ -69,3 +69,50 @@ def test_compiled_quat_distance_of_a_zero_quaternion_has_a_nan_gradient_as_eager
     for g, ref_g in zip(grads, ref_grads):
         assert torch.isnan(g[:2]).all() and torch.isnan(ref_g[:2]).all()
         torch.testing.assert_close(g[2], ref_g[2], rtol=0, atol=1e-15)
+
+
+def test_a_training_loops_modes_and_layouts_never_hit_the_recompile_limit(compiled, monkeypatch):
+    # Train (grad), eval (no_grad) and inference_mode calls, each with a full and a last short batch,
+    # contiguous and as a column slice of a network output, in two dtypes: dynamo's 8 graphs per
+    # function ran out at the ninth variant, an error under fullgraph=True (found by an audit)
+    import torchquat._dispatch as dispatch
+    monkeypatch.setattr(dispatch, "_backend", "eager")
+    monkeypatch.setattr(dispatch, "_compiled", {})
+    torch._dynamo.reset()
+    outputs = torch.randn(64, 7, dtype=torch.float64)  # e.g. a pose head: translation and quaternion
+    for dtype in (torch.float32, torch.float64):
+        for n in (64, 1):
+            for sliced in (False, True):
+                for mode in ("train", "eval", "inference"):
+                    x = outputs[:n, 3:7].to(dtype)
+                    x = x if sliced else x.contiguous()
+                    tq.use_compiled_kernels(False)
+                    expected = tq.quat_to_axis_angle(x)
+                    tq.use_compiled_kernels(True)
+                    if mode == "train":
+                        x = x.detach().requires_grad_()
+                        out = tq.quat_to_axis_angle(x)
+                        out.sum().backward()
+                        assert torch.isfinite(x.grad).all()
+                    else:
+                        with torch.no_grad() if mode == "eval" else torch.inference_mode():
+                            out = tq.quat_to_axis_angle(x)
+                    torch.testing.assert_close(out.detach(), expected, rtol=0, atol=1e-5 if dtype == torch.float32 else 1e-12)
+
+
+def test_past_the_recompile_limit_a_call_runs_eagerly_instead_of_failing(compiled, monkeypatch):
+    import torchquat._dispatch as dispatch
+    monkeypatch.setattr(dispatch, "_backend", "eager")
+    monkeypatch.setattr(dispatch, "_compiled", {})
+    torch._dynamo.reset()
+    q = tq.random_quat(24, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
+    # ranks and unit dimensions: each a graph of its own in one context, more than dynamo keeps
+    shapes = [(24,), (2, 12), (12, 2), (1, 24), (24, 1), (2, 3, 4), (1, 1, 24), (2, 1, 12), (1, 2, 12),
+              (2, 2, 6), (1, 2, 3, 4), (2, 3, 2, 2)]
+    for shape in shapes:
+        x = q.reshape(shape + (4,))
+        tq.use_compiled_kernels(False)
+        expected = tq.quat_to_matrix(x)
+        tq.use_compiled_kernels(True)
+        torch.testing.assert_close(tq.quat_to_matrix(x), expected, rtol=0, atol=1e-15)
+    assert len(dispatch._compiled) == 1  # one context throughout: the limit was reached, and passed

@@ -64,8 +64,10 @@ def _fresh_copy(fn: Callable, tag: int) -> Callable:
     return copy
 
 
-def _compiled_for(fn: Callable, static: Tuple) -> Callable:
-    key = (fn, static)
+def _compiled_for(fn: Callable, static: Tuple, context: Tuple = ()) -> Callable:
+    """The compiled ``fn`` for its static options (sorted ``(name, value)`` pairs) and the call's
+    ``context`` (grad, inference mode, dtype): one compiled function for each."""
+    key = (fn, static, context)
     compiled = _compiled.get(key)
     if compiled is None:
         options = dict(static)
@@ -160,7 +162,18 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
                 return dispatch(*tensors, **static)
         if (_enabled and not torch.compiler.is_compiling()
                 and not torch._C._are_functorch_transforms_active()):
-            return _compiled_for(fn, tuple(sorted(static.items())))(*tensors)
+            # Dynamo guards on grad and inference mode and the dtype, and keeps 8 graphs per
+            # function: a training loop's train / eval / inference calls, each with a last
+            # short batch or a sliced input, would run past them. So each of those gets a
+            # compiled function of its own; and past the limit (a ninth layout in one of them)
+            # the call runs eagerly instead of failing (fullgraph=True makes the limit an error).
+            context = (torch.is_grad_enabled() and any(t.requires_grad for t in tensors),
+                       torch.is_inference_mode_enabled(), tensors[0].dtype)
+            try:
+                return _compiled_for(fn, tuple(sorted(static.items())), context)(*tensors)
+            except Exception as error:
+                if type(error).__name__ != "FailOnRecompileLimitHit":
+                    raise
         if (blocked_row_dims is not None
                 and (tensors[0].numel() >= _BLOCKED_FROM or tensors[-1].numel() >= _BLOCKED_FROM)
                 and not torch.compiler.is_compiling() and not torch._C._are_functorch_transforms_active()):
