@@ -108,6 +108,10 @@ OPS: List[Op] = [
         "axis_angle_to_quat(v)"),
     _op("quat_to_axis_angle", "quat -> axis-angle", ["q"], "axis_angle", tq.quat_to_axis_angle,
         "quat_to_axis_angle(q)"),
+    _op("axis_angle_to_matrix", "axis-angle -> matrix", ["aa"], "matrix", tq.axis_angle_to_matrix,
+        "axis_angle_to_matrix(v)"),
+    _op("matrix_to_axis_angle", "matrix -> axis-angle", ["R"], "axis_angle", tq.matrix_to_axis_angle,
+        "matrix_to_axis_angle(R)"),
     _op("quat_multiply", "quat product", ["q", "q2"], "quat", tq.quat_multiply, "quat_multiply(p, q)"),
     _op("rot6d_to_matrix", "6D -> matrix", ["x6"], "matrix", tq.rot6d_to_matrix, "rot6d_to_matrix(x)"),
     _op("quat_geodesic_distance", "geodesic distance (quat)", ["q", "q2"], "scalar",
@@ -157,6 +161,8 @@ def _roma(roma) -> Dict[str, Impl]:
         "axis_angle_to_quat": Impl(roma.rotvec_to_unitquat, lambda d: (d["aa"],),
                                    "roma.rotvec_to_unitquat(v)", out_q),
         "quat_to_axis_angle": Impl(roma.unitquat_to_rotvec, q, "roma.unitquat_to_rotvec(q_xyzw)"),
+        "axis_angle_to_matrix": Impl(roma.rotvec_to_rotmat, lambda d: (d["aa"],), "roma.rotvec_to_rotmat(v)"),
+        "matrix_to_axis_angle": Impl(roma.rotmat_to_rotvec, lambda d: (d["R"],), "roma.rotmat_to_rotvec(R)"),
         "quat_multiply": Impl(roma.quat_product, lambda d: (_xyzw(d["q"]), _xyzw(d["q2"])),
                               "roma.quat_product(p_xyzw, q_xyzw)", out_q),
         # special_gramschmidt orthonormalises the first two *columns* of a 3 x N matrix.
@@ -201,6 +207,10 @@ def _kornia(kornia) -> Dict[str, Impl]:
                                    "kornia...axis_angle_to_quaternion(v)"),
         "quat_to_axis_angle": Impl(C.quaternion_to_axis_angle, lambda d: (d["q"],),
                                    "kornia...quaternion_to_axis_angle(q_wxyz)"),
+        "axis_angle_to_matrix": Impl(C.axis_angle_to_rotation_matrix, lambda d: (d["aa"],),
+                                     "kornia...axis_angle_to_rotation_matrix(v)"),
+        "matrix_to_axis_angle": Impl(C.rotation_matrix_to_axis_angle, lambda d: (d["R"],),
+                                     "kornia...rotation_matrix_to_axis_angle(R)"),
     }
 
 
@@ -214,6 +224,8 @@ def _pytorch_kinematics(pk) -> Dict[str, Impl]:
                                    "pk.axis_angle_to_quaternion(v)"),
         "quat_to_axis_angle": Impl(T.quaternion_to_axis_angle, lambda d: (d["q"],),
                                    "pk.quaternion_to_axis_angle(q)"),
+        "axis_angle_to_matrix": Impl(T.so3_exp_map, lambda d: (d["aa"],), "pk.so3_exp_map(v)"),
+        "matrix_to_axis_angle": Impl(T.matrix_to_axis_angle, lambda d: (d["R"],), "pk.matrix_to_axis_angle(R)"),
         # quaternion_multiply also standardises the sign; the raw product is torchquat's operation.
         "quat_multiply": Impl(T.quaternion_raw_multiply, lambda d: (d["q"], d["q2"]),
                               "pk.quaternion_raw_multiply(p, q)"),
@@ -260,6 +272,9 @@ def _pypose(pp) -> Dict[str, Impl]:
         "axis_angle_to_quat": Impl(lambda x: x.Exp(), lambda d: (pp.so3(d["aa"]),), "pp.so3(v).Exp()", out_q),
         "quat_to_axis_angle": Impl(lambda x: x.Log(), so3q, "pp.SO3(q_xyzw).Log()",
                                    lambda out: out.tensor()),
+        "axis_angle_to_matrix": Impl(lambda x: x.matrix(), lambda d: (pp.so3(d["aa"]),), "pp.so3(v).matrix()"),
+        "matrix_to_axis_angle": Impl(lambda R: pp.mat2SO3(R, check=False).Log(), lambda d: (d["R"],),
+                                     "pp.mat2SO3(R, check=False).Log()", lambda out: out.tensor()),
         "quat_multiply": Impl(lambda a, b: a * b, lambda d: (pp.SO3(_xyzw(d["q"])), pp.SO3(_xyzw(d["q2"]))),
                               "pp.SO3(p_xyzw) * pp.SO3(q_xyzw)", out_q),
         "quat_geodesic_distance": Impl(lambda a, b: pp.geodesic_loss(a, b, reduction="none"),
@@ -282,6 +297,8 @@ def _scipy(Rotation) -> Dict[str, Impl]:
                                "from_rotvec(v).as_quat(scalar_first=True)"),
         "quat_to_axis_angle": (lambda q: R_.from_quat(q, scalar_first=True).as_rotvec(), ("q",),
                                "from_quat(q, scalar_first=True).as_rotvec()"),
+        "axis_angle_to_matrix": (lambda v: R_.from_rotvec(v).as_matrix(), ("aa",), "from_rotvec(v).as_matrix()"),
+        "matrix_to_axis_angle": (lambda m: R_.from_matrix(m).as_rotvec(), ("R",), "from_matrix(R).as_rotvec()"),
         "quat_multiply": (lambda p, q: (R_.from_quat(p, scalar_first=True) * R_.from_quat(q, scalar_first=True))
                           .as_quat(scalar_first=True), ("q", "q2"), "(from_quat(p) * from_quat(q)).as_quat()"),
         "quat_geodesic_distance": (lambda a, b: (R_.from_quat(a, scalar_first=True).inv()
