@@ -93,7 +93,8 @@ def _angles(forms: Tensor, conv: EulerConvention, eps: float, for_autograd: bool
     two_h, locked = lock(forms, eps)
     y, x = forms.unbind(-1)
     z = y[..., 3]
-    near_zero = z >= 0 if conv.symmetric else z <= 0
+    zero = constant("zero", 0.0, forms)  # (a tensor: a Python 0 is wrapped into one on every call, 1 us)
+    near_zero = z >= zero if conv.symmetric else z <= zero
     if for_autograd:  # the discarded pairs become (0, 1) before atan2 (see the module docstring);
         # the same layout as forms', so that atan2 takes the same (vectorised or scalar) loop
         discarded = torch.stack((locked, near_zero.logical_not(), near_zero, torch.zeros_like(locked)), dim=-1)
@@ -101,7 +102,6 @@ def _angles(forms: Tensor, conv: EulerConvention, eps: float, for_autograd: bool
     if y.numel() > 64:  # a strided atan2 is not vectorised (15x slower): contiguous first
         y, x = y.contiguous(), x.contiguous()  # (for a few rows the copies cost more than they save)
     t1, near_zero_double, near_pi_double, _ = torch.atan2(y, x).unbind(-1)
-    zero = constant("zero", 0.0, forms)
     t1 = torch.where(locked, zero, t1)  # (for autograd already atan2(0, 1) = 0)
     double = torch.where(near_zero, near_zero_double, near_pi_double)
     middle = torch.atan2(two_h, z) if conv.symmetric else torch.atan2(z, two_h)

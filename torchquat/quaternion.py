@@ -272,16 +272,16 @@ def quat_slerp(q0: Tensor, q1: Tensor, t: Union[float, Tensor]) -> Tensor:
          else torch.as_tensor(t, dtype=q0.dtype, device=q0.device)).unsqueeze(-1)
     if t.dim() > 1:  # (a number always broadcasts)
         check_broadcast("quat_slerp", ("q0", "q1", "t"), (q0, q1, t), (1, 1, 1))
-    q1 = torch.where((q0 * q1).sum(-1, keepdim=True) < 0, -q1, q1)
-    diff2 = ((q0 - q1) ** 2).sum(-1, keepdim=True)
-    summ2 = ((q0 + q1) ** 2).sum(-1, keepdim=True)
-    small = diff2 < torch.finfo(q0.dtype).eps  # |q0 - q1| < sqrt(eps): angle below ~sqrt(eps)
-    angle = 2.0 * torch.atan2(torch.sqrt(torch.where(small, 1.0, diff2)), torch.sqrt(summ2))
-    angle = torch.where(small, 1.0, angle)  # safe stand-in, discarded below
-    sin_angle = torch.sin(angle)
-    w0 = torch.where(small, 1.0 - t, torch.sin((1.0 - t) * angle) / sin_angle)
-    w1 = torch.where(small, t, torch.sin(t * angle) / sin_angle)
-    return restore(w0 * q0 + w1 * q1, dtype)
+    # (constants as tensors: a Python number is wrapped into a tensor on every call, 1 us each)
+    zero, one = constant("zero", 0.0, q0), constant("one", 1.0, q0)
+    q1 = q1 * torch.where((q0 * q1).sum(-1, keepdim=True) < zero, constant("minus_one", -1.0, q0), one)
+    chords = torch.linalg.vector_norm(torch.stack((q0 - q1, q0 + q1), dim=-2), dim=-1)  # (|q0 - q1|, |q0 + q1|)
+    diff, summ = chords[..., :1], chords[..., 1:]  # (vector_norm's gradient at 0 is 0, not NaN)
+    small = diff < constant("sqrt_eps", torch.finfo(q0.dtype).eps ** 0.5, q0)  # angle below ~sqrt(eps)
+    angle = torch.where(small, one, constant("two", 2.0, q0) * torch.atan2(diff, summ))  # (1: a safe stand-in)
+    times = torch.cat((one - t, t), dim=-1)  # both weights, one sine
+    weights = torch.where(small, times, torch.sin(times * angle) / torch.sin(angle))
+    return restore(torch.addcmul(weights[..., :1] * q0, weights[..., 1:], q1), dtype)
 
 
 def quat_identity(shape: Union[int, Sequence[int]] = (), *, dtype=None, device=None) -> Tensor:
