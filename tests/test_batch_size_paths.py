@@ -471,3 +471,41 @@ def test_gimbal_lock_mask_is_the_test_quat_to_euler_applied_at_every_batch_size(
         assert zero[mask].all(), (to_euler.__name__, int((mask & ~zero).sum()))
         # (an unlocked third angle is 0 only by rounding: t1's pair (y, 0) in float32)
         assert (zero & ~mask).sum() <= rows // 100
+
+
+def _cube_rotations():
+    """The 24 rotations of a cube: signed permutation matrices with det +1, all entries exact,
+    half and quarter turns that put most conventions' middle angle at lock or at 0 / pi."""
+    import itertools
+    out = []
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((1.0, -1.0), repeat=3):
+            R = torch.zeros(3, 3, dtype=torch.float64)
+            for row, (col, sign) in enumerate(zip(perm, signs)):
+                R[row, col] = sign
+            if torch.linalg.det(R) > 0:
+                out.append(R)
+    return torch.stack(out)
+
+
+@pytest.mark.parametrize("convention", sorted(tq.EULER_CONVENTIONS))
+def test_exact_half_turns_give_the_same_angles_on_every_path_and_never_minus_pi(convention):
+    # yaw = 180 degrees came out as +pi on one batch size and -pi on another (and -pi for -q where
+    # q gave +pi): a wrap into [-pi, pi) on the small path, signed zeros in strided columns
+    cube = _cube_rotations()
+    negative_zeros = torch.where(cube == 0, -0.0, cube)  # (as many matrices written by NumPy code hold)
+    q = tq.matrix_to_quat(cube)
+    reference = None
+    for rows in (1, 1100, 70_000):  # small, strided / column-wise, contiguous planes and blocks
+        repeat = -(-rows // len(cube))
+        for name, x, fn in (("q", q, tq.quat_to_euler), ("-q", -q, tq.quat_to_euler),
+                            ("R", cube, tq.matrix_to_euler), ("R with -0", negative_zeros, tq.matrix_to_euler)):
+            batch = x.repeat((repeat,) + (1,) * (x.dim() - 1))[:max(rows, len(cube))]
+            angles = fn(batch, convention)[:len(cube)] if rows > 1 else torch.cat([fn(r, convention)[None] for r in x])
+            outer = angles[:, [0, 2]]
+            assert not (outer == -torch.pi).any(), (rows, name, angles[(outer == -torch.pi).any(-1)])
+            if reference is None:
+                reference = angles
+            torch.testing.assert_close(angles, reference, rtol=0, atol=1e-12, msg=f"{rows} rows, {name}")
+    # and they are the rotations
+    torch.testing.assert_close(tq.euler_to_matrix(reference, convention), cube, rtol=0, atol=1e-12)

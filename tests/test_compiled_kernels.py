@@ -116,3 +116,22 @@ def test_past_the_recompile_limit_a_call_runs_eagerly_instead_of_failing(compile
         tq.use_compiled_kernels(True)
         torch.testing.assert_close(tq.quat_to_matrix(x), expected, rtol=0, atol=1e-15)
     assert len(dispatch._compiled) == 1  # one context throughout: the limit was reached, and passed
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("convention", ["ZYX", "xyz", "zxz"])
+def test_compiled_exact_half_turns_are_plus_pi_as_eager(convention, compiled):
+    # inductor's columns keep a negated zero (-0), whose atan2 against a negative x is -pi
+    from test_batch_size_paths import _cube_rotations
+    cube = _cube_rotations()
+    q = tq.matrix_to_quat(cube)
+    for dtype in (torch.float64, torch.float32):
+        for x, fn in ((q, tq.quat_to_euler), (-q, tq.quat_to_euler), (cube, tq.matrix_to_euler),
+                      (torch.where(cube == 0, -0.0, cube), tq.matrix_to_euler)):
+            x = x.to(dtype)
+            tq.use_compiled_kernels(False)
+            expected = torch.cat([fn(r, convention)[None] for r in x])
+            tq.use_compiled_kernels(True)
+            angles = fn(x.repeat((50,) + (1,) * (x.dim() - 1)), convention)[:len(x)]
+            assert not (angles[:, [0, 2]] == -torch.pi).any()
+            torch.testing.assert_close(angles, expected, rtol=0, atol=1e-6 if dtype == torch.float32 else 1e-12)

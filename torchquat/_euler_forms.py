@@ -172,7 +172,11 @@ def _lock_test(forms, eps: float, abcd2, values: bool = True):
     scale = None
     if isinstance(abcd2, Tensor):
         scale, abcd2 = abcd2, 1.0
-        y1, x1, z = y1 / scale, x1 / scale, z / scale
+        # (0 + y1 / scale: a -0 from strided columns' products becomes +0, so that t1 = atan2(y1, x1)
+        # of an exact half turn is +pi, not -pi, as on the matmul paths)
+        y1, x1, z = torch.addcdiv(constant("zero", 0.0, y1), y1, scale), x1 / scale, z / scale
+    elif torch.compiler.is_compiling() or not y1.is_cpu:  # (fused there; on the CPU eager the
+        y1 = y1 + 0.0  # matrices' forms come out of a matmul, which gives +0) the same for a -0
     two_h = (torch.sqrt if values else safe_sqrt)(y1 * y1 + x1 * x1)
     return y1, x1, z, scale, two_h, two_h <= abcd2 * math.sin(eps)  # sin(middle) <= sin(eps), as the small path
 
@@ -226,14 +230,19 @@ def angles_parts(forms, conv: EulerConvention, eps: float, abcd2, out: Optional[
     y_double, x_double = pick(y_zero, y_pi), pick(x_zero, x_pi)
     double = torch.atan2(y_double, x_double)
     t3 = torch.addcmul(double, t1, step)  # D - tb t1 near 0, D + tb t1 near pi
-    t3 = torch.sub(t3, torch.round(t3 * (0.5 / math.pi)) * (2.0 * math.pi),  # into [-pi, pi], branch-free
-                   out=final(0) if conv.intrinsic else None)
+    if not conv.intrinsic:  # SciPy's rule moves the rotation into the first angle at lock: there
+        # t3 = D, and the lock pair (2ab, a^2 - b^2) or (-2cd, c^2 - d^2) is the double angle's up
+        # to sign: -step D, wrapped by the same passes
+        t3 = t3 * torch.where(locked, -step, 1.0)
+    # into (-pi, pi], branch-free, exact for angles already in it; an exact half turn is +pi on
+    # every path (t3 - pi is exact there, and -2 pi / 2 pi exactly -1: no rounding decides)
+    turns = torch.ceil((t3 - math.pi) / (2.0 * math.pi))
+    t3 = torch.sub(t3, turns, alpha=2.0 * math.pi, out=final(0) if conv.intrinsic else None)
     if conv.intrinsic:
         angles = (t3, middle, t1)
-    else:  # SciPy's rule moves the rotation into the first angle at lock: there t3 = D, and the
-        # lock pair (2ab, a^2 - b^2) or (-2cd, c^2 - d^2) is the double angle's up to sign: -step D
+    else:
         zero = constant("zero", 0.0, t3)
-        angles = (torch.where(locked, -step * t3, t1, out=final(0)), middle, torch.where(locked, zero, t3, out=final(2)))
+        angles = (torch.where(locked, t3, t1, out=final(0)), middle, torch.where(locked, zero, t3, out=final(2)))
     if values:
         return angles, None
     return angles, (y1, x1, y1_used, x1_used, y_double, x_double, two_h, z, locked, weight, step, scale)

@@ -108,12 +108,18 @@ def _angles(forms: Tensor, conv: EulerConvention, eps: float, for_autograd: bool
     # t3 = D - tb t1 (middle near 0) or D + tb t1 (near pi), in [-pi, pi]; `flip` is -step
     name, value, other_name, other_value = _FLIPS[forms_tables(conv.name)[3]]
     flip = torch.where(near_zero, constant(name, value, forms), constant(other_name, other_value, forms))
-    t3 = torch.remainder(torch.addcmul(double, t1, flip, value=-1.0), constant("two_pi", 2.0 * math.pi, forms)) - constant("pi", math.pi, forms)
+    # t3 + pi (the double angles are shifted by pi); remainder by -2 pi, in (-2 pi, 0], then + pi
+    # wraps into (-pi, pi]: an exact half turn is +pi on every path (as the large batches' wrap)
+    shifted = torch.addcmul(double, t1, flip, value=-1.0)
+    if not conv.intrinsic:  # at lock t1 = 0 here, and SciPy's rule moves the rotation into the
+        # first angle: t3 = D, and the lock pair's atan2 (2ab, a^2 - b^2) or (-2cd, c^2 - d^2) is
+        # flip * D, whose shifted form is flip * shifted (mod 2 pi): wrapped by the same pass
+        shifted = shifted * torch.where(locked, flip, constant("one", 1.0, forms))
+    t3 = torch.remainder(shifted, constant("minus_two_pi", -2.0 * math.pi, forms)) + constant("pi", math.pi, forms)
     if conv.intrinsic:  # the letters' third angle is t1, exactly 0 at lock
         angles = torch.stack((t3, middle, t1), dim=-1)
-    else:  # at lock t1 = 0 here, and SciPy's rule moves the rotation into the first angle:
-        # t3 = D, and the lock pair's atan2 (2ab, a^2 - b^2) or (-2cd, c^2 - d^2) is flip * D
-        angles = torch.stack((torch.where(locked, flip * t3, t1), middle, torch.where(locked, zero, t3)), dim=-1)
+    else:
+        angles = torch.stack((torch.where(locked, t3, t1), middle, torch.where(locked, zero, t3)), dim=-1)
     return angles, (two_h, z, near_zero, locked, flip)
 
 
