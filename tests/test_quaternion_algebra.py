@@ -157,3 +157,20 @@ def test_slerp_takes_t_as_a_number_a_sequence_or_a_tensor():
     for t in (0.25, np.float64(0.25), [0.25, 0.25, 0.25], np.array([0.25, 0.25, 0.25]), torch.tensor(0.25)):
         assert torch.allclose(tq.quat_slerp(q0, q1, t), per_row, atol=1e-15, rtol=0), type(t)
     assert (tq.quat_slerp(q0, q1, 0) - q0).abs().max() <= 1e-15  # an int is a number too
+
+
+def test_slerp_of_a_zero_quaternion_is_nan_and_other_norms_are_normalised():
+    # a zero quaternion gave a plausible 0.45 q1 (README: "A zero quaternion ... gives NaN")
+    q1 = tq.random_quat(3, generator=torch.Generator().manual_seed(5), dtype=torch.float64)
+    zero = torch.zeros(3, 4, dtype=torch.float64)
+    assert torch.isnan(tq.quat_slerp(zero, q1, 0.3)).all()
+    assert torch.isnan(tq.quat_slerp(q1, zero, 0.3)).all()
+    q0 = tq.random_quat(3, generator=torch.Generator().manual_seed(6), dtype=torch.float64)
+    torch.testing.assert_close(tq.quat_slerp(5.0 * q0, 0.01 * q1, 0.3), tq.quat_slerp(q0, q1, 0.3), rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("dtype", [torch.int64, torch.bool, torch.complex64])
+def test_slerp_refuses_a_non_floating_t_tensor(dtype):
+    q = tq.random_quat(2, generator=torch.Generator().manual_seed(7))
+    with pytest.raises(TypeError, match="quat_slerp: expected t to be a number or a floating-point tensor"):
+        tq.quat_slerp(q[0], q[1], torch.ones(1, dtype=dtype))

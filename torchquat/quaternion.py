@@ -251,8 +251,8 @@ def quat_slerp(q0: Tensor, q1: Tensor, t: Union[float, Tensor]) -> Tensor:
     weights fall back to their Taylor limits ``(1 - t, t)``, so gradients stay finite at ``q0 == q1``.
 
     Args:
-        q0: start quaternions (unit).
-        q1: end quaternions (unit); batch dims broadcast with ``q0``'s.
+        q0: start quaternions, any non-zero norm (normalised first; zero gives NaN).
+        q1: end quaternions, likewise; batch dims broadcast with ``q0``'s.
         t: interpolation parameter, a float or a tensor broadcasting with the batch dims.
 
     Returns:
@@ -267,13 +267,22 @@ def quat_slerp(q0: Tensor, q1: Tensor, t: Union[float, Tensor]) -> Tensor:
         tensor([0.7071, 0.0000, 0.0000, 0.7071])
     """
     q0, q1, dtype = prepare_pair("quat_slerp", ("q0", "q1"), q0, q1, (4,), (4,))
-    # a Python number is filled in on the device (as_tensor would copy it from the host, a sync)
-    t = (torch.full((), float(t), dtype=q0.dtype, device=q0.device) if isinstance(t, numbers.Real)
-         else torch.as_tensor(t, dtype=q0.dtype, device=q0.device)).unsqueeze(-1)
+    if isinstance(t, numbers.Real):  # (a number is filled in on the device: as_tensor would copy it from the host, a sync)
+        t = torch.full((), float(t), dtype=q0.dtype, device=q0.device)
+    elif isinstance(t, Tensor):
+        if not t.dtype.is_floating_point:
+            raise TypeError(f"quat_slerp: expected t to be a number or a floating-point tensor, got dtype {t.dtype}")
+        t = t.to(device=q0.device, dtype=q0.dtype)
+    else:  # a sequence of numbers
+        t = torch.as_tensor(t, dtype=q0.dtype, device=q0.device)
+    t = t.unsqueeze(-1)
     if t.dim() > 1:  # (a number always broadcasts)
         check_broadcast("quat_slerp", ("q0", "q1", "t"), (q0, q1, t), (1, 1, 1))
     # (constants as tensors: a Python number is wrapped into a tensor on every call, 1 us each)
     zero, one = constant("zero", 0.0, q0), constant("one", 1.0, q0)
+    # unit inputs (a zero quaternion gives NaN, as everywhere, not a plausible rotation)
+    q0 = q0 / torch.linalg.vector_norm(q0, dim=-1, keepdim=True)
+    q1 = q1 / torch.linalg.vector_norm(q1, dim=-1, keepdim=True)
     q1 = q1 * torch.where((q0 * q1).sum(-1, keepdim=True) < zero, constant("minus_one", -1.0, q0), one)
     chords = torch.linalg.vector_norm(torch.stack((q0 - q1, q0 + q1), dim=-2), dim=-1)  # (|q0 - q1|, |q0 + q1|)
     diff, summ = chords[..., :1], chords[..., 1:]  # (vector_norm's gradient at 0 is 0, not NaN)
