@@ -80,16 +80,15 @@ def test_nearly_orthogonal_matrix_is_projected_and_far_one_rejected(tmp_path):
         convert_file(mirror, tmp_path / "mirror.csv")
 
 
-@pytest.mark.parametrize("content,message", [
-    ("", "no poses"),
-    ("# only a comment\n\n", "no poses"),
-])
-def test_empty_input_is_an_error(tmp_path, content, message):
-    src = tmp_path / "empty.txt"
+@pytest.mark.parametrize("name", ["empty.txt", "empty.tum", "empty.kitti"])
+@pytest.mark.parametrize("content", ["", "# only a comment\n\n"])
+def test_empty_input_is_an_error_that_names_the_input(tmp_path, name, content):
+    src = tmp_path / name
     src.write_text(content)
-    with pytest.raises(PoseFileError, match=message):
-        convert_file(src, tmp_path / "out.tum")
-    assert not (tmp_path / "out.tum").exists()
+    with pytest.raises(PoseFileError, match="no poses") as error:
+        convert_file(src, tmp_path / "out.csv")
+    assert str(src) in str(error.value) and "out.csv" not in str(error.value)
+    assert not (tmp_path / "out.csv").exists()
 
 
 def test_output_equal_to_input_is_refused(tmp_path):

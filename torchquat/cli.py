@@ -34,8 +34,8 @@ _CONVERT_EPILOG = """formats (from the extension, or --from / --to):
   npy    .npy   the rotation array alone
 
 checks: a malformed line stops the conversion (file:line on stderr, exit 2, OUT untouched);
-quaternions with |norm - 1| < 1e-3 are normalised, matrices with max|R^T R - I| < 1e-2 are projected
-onto the nearest rotation (counts on stderr); worse is an error.
+quaternions with |norm - 1| < 1e-3 are normalised, matrices with 1e-5 <= max|R^T R - I| < 1e-2 are
+projected onto the nearest rotation (counts on stderr; below 1e-5 taken as written); worse is an error.
 
 examples:
   torchquat convert KITTI_00_gt.txt kitti00.tum

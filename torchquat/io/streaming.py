@@ -387,10 +387,14 @@ def convert_file(src: PathLike, dst: PathLike, to: Optional[str] = None, from_fo
         pairs = _read_ahead(pairs)
 
     def chunks() -> Iterator[Poses]:
+        rows = 0
         for poses, done in pairs:
+            rows += len(poses)
             yield poses
             if on_chunk is not None:  # called here, in the caller's thread, once the chunk is written
                 on_chunk(done)
+        if rows == 0:  # (IN's fault: not write_poses' "no poses to write", which names OUT)
+            raise PoseFileError(src, "the file holds no poses (empty, or comments only)")
     try:
         return write_poses(dst, chunks(), target, representation, degrees, dtype, report)
     finally:

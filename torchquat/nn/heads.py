@@ -37,10 +37,11 @@ class RotationHead(nn.Module):
     ================  ====  ==================================================================
 
     Parameters keep ``nn.Linear``'s default initialisation (no bias towards the identity), so an
-    untrained head outputs scattered rotations. Features of any finite magnitude give orthonormal
-    matrices with det +1 (``"axis_angle"``: while the rotation angle, the output's norm, stays
-    below about 1e19, where its square overflows in float32); NaN or inf features give NaN
-    rotations (never an exception).
+    untrained head outputs scattered rotations. Linear outputs of any finite magnitude give
+    orthonormal matrices with det +1 (``"axis_angle"``: while the rotation angle, the output's
+    norm, stays below about 1e19, where its square overflows in float32); NaN or inf outputs
+    (from NaN features, or features so large that the linear layer overflows, near 3e38 in
+    float32) give NaN rotations (never an exception).
 
     Args:
         in_features: size of the last dimension of the input features.
