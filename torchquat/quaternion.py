@@ -251,7 +251,7 @@ def quat_slerp(q0: Tensor, q1: Tensor, t: Union[float, Tensor]) -> Tensor:
     weights fall back to their Taylor limits ``(1 - t, t)``, so gradients stay finite at ``q0 == q1``.
 
     Args:
-        q0: start quaternions, any non-zero norm (normalised first; zero gives NaN).
+        q0: start quaternions; other norms than 1 are normalised first (zero gives NaN).
         q1: end quaternions, likewise; batch dims broadcast with ``q0``'s.
         t: interpolation parameter, a float or a tensor broadcasting with the batch dims.
 
