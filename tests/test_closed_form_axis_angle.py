@@ -177,3 +177,18 @@ def test_large_batch_closed_form_matches_autograd_of_the_columnwise_forward(name
     assert torch.isfinite(g).all()
     size = 1.0 + g_expected.abs().amax(-1, keepdim=True)
     assert ((g - g_expected).abs() / size).max() < 1e-13
+
+
+@pytest.mark.parametrize("fn", [tq.axis_angle_to_quat, tq.axis_angle_to_matrix, tq.quat_to_axis_angle,
+                                tq.matrix_to_axis_angle])
+def test_second_derivatives_at_the_zero_rotation_are_exact(fn):
+    # The map is analytic there, but a norm's second derivative at 0 is NaN even where no
+    # gradient flows through it: the plain forward (double backward, torch.func) takes the
+    # series in v . v and the square root of a substitute, no norm
+    v = torch.tensor([[0.0, 0.0, 0.0], [1e-9, -2e-9, 0.0], [3e-5, 0.0, -1e-5], [0.3, -0.2, 0.5]], dtype=torch.float64)
+    x = {tq.quat_to_axis_angle: tq.axis_angle_to_quat(v), tq.matrix_to_axis_angle: tq.axis_angle_to_matrix(v)}.get(fn, v)
+    x = x.clone().requires_grad_()
+    assert torch.autograd.gradcheck(fn, (x,))
+    assert torch.autograd.gradgradcheck(fn, (x,))
+    hessian = torch.autograd.functional.hessian(lambda y: fn(y).pow(2).sum() + fn(y).sum(), x[:1])
+    assert torch.isfinite(hessian).all()

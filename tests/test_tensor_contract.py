@@ -180,3 +180,20 @@ def test_convert_within_a_representation_returns_a_fresh_tensor(src, dst):
     before = x.detach().clone()
     out.view(-1)[0] = 7.0
     assert torch.equal(x.detach(), before)
+
+
+def test_each_cached_constant_name_has_one_value():
+    # constant() caches by (name, dtype): one name written with two values would hand one of them
+    # to both call sites, whichever ran first (an axis-angle stand-in once reused "unit_x", the
+    # small Euler path's (0, 1) pair)
+    import pathlib
+    import re
+    import torchquat
+    seen = {}
+    pattern = re.compile(r'constant\(\s*"([^"]+)",\s*([^,]+(?:\([^)]*\))?[^,]*),')
+    for path in pathlib.Path(torchquat.__file__).parent.rglob("*.py"):
+        for name, value in pattern.findall(path.read_text()):
+            seen.setdefault(name, set()).add(value.strip())
+    assert seen, "no constant() calls found"
+    clashes = {name: values for name, values in seen.items() if len(values) > 1}
+    assert not clashes, clashes

@@ -11,31 +11,40 @@ from torch import Tensor
 from . import _closed_form as closed_form
 from ._closed_form import Rule, jacobian_rule
 from ._dispatch import kernel
-from ._math import HALF_IDENTITY, constant, is_small, small_angle_threshold, sum_of_squares
+from ._math import HALF_IDENTITY, constant, contract, is_small, outer_product, small_angle_threshold, sum_of_squares
 from ._planes import columns, plane_buffer, rows, slot
 from ._validation import prepare, restore
-from .matrix import matrix_to_quat_unchecked, quat_to_matrix_unchecked
+from .matrix import HOMOGENEOUS, matrix_to_quat_unchecked, quat_to_matrix_unchecked
 
 __all__ = ["axis_angle_to_quat", "quat_to_axis_angle", "axis_angle_to_matrix", "matrix_to_axis_angle"]
 
 
-def _half_angle(v: Tensor, for_autograd: bool = True):
+def _half_angle(v: Tensor, for_autograd: bool = True, twice: bool = False):
     """``theta``, the small-angle mask, ``theta`` with 1 there (for autograd; values need no
     substitute: where a closed form would be NaN the series is taken), ``theta / 2`` of that, and
-    ``cos(theta / 2)``, ``sin(theta / 2) / theta``."""
+    ``cos(theta / 2)``, ``sin(theta / 2) / theta``. ``twice`` (the forward autograd differentiates:
+    double backward, ``torch.func``): no norm of a vector that can be 0 takes part, since a norm's
+    second derivative there is NaN even where no gradient flows; the same numbers."""
+    one = constant("one", 1.0, v)
     theta = torch.linalg.vector_norm(v, dim=-1, keepdim=True)  # gradient 0 (not NaN) at v = 0
     # Below theta^2 = sqrt(eps) the next series terms (theta^4/384, theta^4/3840) are under eps.
     small = theta < constant("axis_angle_small", small_angle_threshold(v.dtype) ** 0.5, v)
-    theta_safe = torch.where(small, constant("one", 1.0, v), theta) if for_autograd else theta
+    if twice:  # theta of a stand-in vector of norm 1 where the series applies; the series in v . v
+        # (theta^2 to an ulp, which 1 - theta^2 / 8 and 1/2 - theta^2 / 48 round away)
+        theta_safe = torch.linalg.vector_norm(torch.where(small, constant("unit_3_x", (1.0, 0.0, 0.0), v), v), dim=-1, keepdim=True)
+        square = (v * v).sum(-1, keepdim=True)
+    else:
+        theta_safe = torch.where(small, one, theta) if for_autograd else theta
+        square = theta * theta
     half = theta_safe * constant("half", 0.5, v)
-    cos_half = torch.where(small, torch.addcmul(constant("one", 1.0, v), theta, theta, value=-0.125), torch.cos(half))
-    sinc_half = torch.where(small, torch.addcmul(constant("half", 0.5, v), theta, theta, value=-1.0 / 48.0),
+    cos_half = torch.where(small, torch.add(one, square, alpha=-0.125), torch.cos(half))
+    sinc_half = torch.where(small, torch.add(constant("half", 0.5, v), square, alpha=-1.0 / 48.0),
                             torch.sin(half) / theta_safe)
     return theta, small, theta_safe, half, cos_half, sinc_half
 
 
 def _axis_angle_to_quat_small(v: Tensor, for_autograd: bool = True) -> Tensor:
-    _, _, _, _, cos_half, sinc_half = _half_angle(v, for_autograd)
+    _, _, _, _, cos_half, sinc_half = _half_angle(v, for_autograd, twice=for_autograd)
     # w >= 0: cos(theta / 2) of a float angle is never exactly 0, so its sign alone decides.
     return torch.cat((cos_half, v * sinc_half), dim=-1) * torch.copysign(constant("one", 1.0, v), cos_half)
 
@@ -98,30 +107,33 @@ def axis_angle_to_quat(v: Tensor) -> Tensor:
     return restore(axis_angle_to_quat_unchecked(v), dtype)
 
 
-def _axis_angle_scale(q: Tensor, for_autograd: bool = True):
+def _axis_angle_scale(q: Tensor, for_autograd: bool = True, twice: bool = False):
     """``w`` (signed), ``u``, ``|w|``, ``|u|``, ``|u|`` with 1 where the series applies (for
     autograd; values need no substitutes: where a closed form would be NaN or inf the other is
     taken), and the factor ``m`` (``angle / |u|``, signed by the hemisphere) of ``u`` in the
-    rotation vector ``m u``."""
+    rotation vector ``m u``. ``twice``: as for :func:`_half_angle`."""
     # shortest arc: use the w >= 0 copy (at w == 0 both copies are half turns, either is right)
     w0, u = q.narrow(-1, 0, 1), q.narrow(-1, 1, 3)
     hemisphere = torch.copysign(constant("two", 2.0, q), w0)  # the factor 2 of the angle, signed
     w = w0.abs()
-    n = torch.linalg.vector_norm(u, dim=-1, keepdim=True)  # gradient 0 (not NaN) at u = 0
     # angle / |u| = 2 atan2(|u|, w) / |u| = (2 / w)(1 - r^2/3 + ...) with r = |u| / w: below
     # r^2 = eps the limit 2 / w is exact to rounding. Above it the closed form is accurate, and
     # its gradient's cancellation costs at most eps / r relative, on a term of size r.
+    n = torch.linalg.vector_norm(u, dim=-1, keepdim=True)  # gradient 0 (not NaN) at u = 0
     small = n <= constant("sqrt_eps", torch.finfo(q.dtype).eps ** 0.5, q) * w
     n_safe, w_safe = n, w
     if for_autograd:
-        n_safe = torch.where(small, constant("one", 1.0, q), n)
+        if twice:  # |u| of a stand-in of norm 1 where the series applies (the series takes no |u|)
+            n_safe = torch.linalg.vector_norm(torch.where(small, constant("unit_3_x", (1.0, 0.0, 0.0), q), u), dim=-1, keepdim=True)
+        else:
+            n_safe = torch.where(small, constant("one", 1.0, q), n)
         w_safe = torch.where(small, w, constant("one", 1.0, q))  # w = 0 (a half turn) only reaches the closed form
     scale = torch.where(small, torch.reciprocal(w_safe), torch.atan2(n_safe, w) / n_safe)
     return w0, u, w, n, n_safe, scale * hemisphere
 
 
 def _quat_to_axis_angle_small(q: Tensor, for_autograd: bool = True) -> Tensor:
-    _, u, _, _, _, m = _axis_angle_scale(q, for_autograd)
+    _, u, _, _, _, m = _axis_angle_scale(q, for_autograd, twice=for_autograd)
     return u * m
 
 
@@ -292,11 +304,38 @@ def quat_to_axis_angle(q: Tensor) -> Tensor:
     return restore(quat_to_axis_angle_unchecked(q), dtype)
 
 
+# R = H(q) for the unit quaternion of v, H the homogeneous form (16 x 9: the entries of |q|^2 R
+# from q q^T, with |q|^2 = 1 to rounding); dR/dq = q^T D, D[j][9 i + k] = H[4 i + j][k] + H[4 j + i][k]
+_ROTATION_FORM = tuple(row[:9] for row in HOMOGENEOUS)
+_ROTATION_FORM_GRADIENT = tuple(tuple(HOMOGENEOUS[4 * i + j][k] + HOMOGENEOUS[4 * j + i][k] for i in range(4) for k in range(9))
+                                for j in range(4))
+
+
+def _rotation_form(q: Tensor) -> Tensor:
+    return contract(outer_product(q, q), "rotation_form", _ROTATION_FORM).unflatten(-1, (3, 3))
+
+
+def _axis_angle_to_matrix_small(v: Tensor, for_autograd: bool = True) -> Tensor:
+    return _rotation_form(_axis_angle_to_quat_small(v, for_autograd))
+
+
+def _axis_angle_to_matrix_with_jacobian(v: Tensor):
+    q, jacobian = _axis_angle_to_quat_with_jacobian(v)  # (..., 3, 4)
+    to_matrix = (q @ constant("rotation_form_gradient", _ROTATION_FORM_GRADIENT, v)).unflatten(-1, (4, 9))
+    return _rotation_form(q), jacobian @ to_matrix  # (..., 3, 9): R's Jacobian, one node
+
+
+_AXIS_ANGLE_TO_MATRIX = jacobian_rule(_axis_angle_to_matrix_small, _axis_angle_to_matrix_with_jacobian,
+                                      lambda v: _axis_angle_to_matrix_small(v, for_autograd=False))
+
+
 @kernel(blocked_row_dims=(1,))
 def axis_angle_to_matrix_unchecked(v: Tensor) -> Tensor:
-    # Through the quaternion: two fused kernels (a series near 0, one quadratic form) where
-    # Rodrigues' formula written out is about 50 eager operations: 2.5x faster at N = 1 and
-    # 2.4x at N = 1e6 forward, 2.1-2.9x with the backward, and as accurate.
+    # Through the quaternion, where Rodrigues' formula written out is about 50 eager operations:
+    # a few rows in one closed-form node (the quaternion's series and its quadratic form, with
+    # the chained Jacobian), many through the two kernels.
+    if is_small(v, 3, share=0.25):
+        return closed_form.apply(_AXIS_ANGLE_TO_MATRIX, v)
     return quat_to_matrix_unchecked(axis_angle_to_quat_unchecked(v))
 
 

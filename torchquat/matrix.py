@@ -30,12 +30,12 @@ def _homogeneous_table():
     return table
 
 
-_HOMOGENEOUS = _homogeneous_table()
+HOMOGENEOUS = _homogeneous_table()
 # contiguous columns from 8,192 rows (quat -> matrix) and 16,384 (matrix -> quat): measured crossovers
 _PLANAR_SHARE, _SHEPPERD_PLANAR_SHARE = 0.25, 0.5
 _PAIRS = tuple((i, j) for i in range(4) for j in range(i, 4))
 # 10 x 9: the products q_i q_j (i <= j) -> the 9 entries of |q|^2 R
-_HOMOGENEOUS_PAIRS = tuple(tuple(_HOMOGENEOUS[4 * i + j][c] + (_HOMOGENEOUS[4 * j + i][c] if i != j else 0.0)
+_HOMOGENEOUS_PAIRS = tuple(tuple(HOMOGENEOUS[4 * i + j][c] + (HOMOGENEOUS[4 * j + i][c] if i != j else 0.0)
                                  for c in range(9)) for i, j in _PAIRS)
 _HOMOGENEOUS_PAIRS_T = tuple(zip(*_HOMOGENEOUS_PAIRS))  # 9 x 10: R's gradient to the products'
 
@@ -87,7 +87,7 @@ def quat_to_matrix_unchecked(q: Tensor) -> Tensor:
     if is_small(q, 4, gpu_share=4):
         # Few rotations: cost is per-operation dispatch, so use 4 ops: the outer product, one
         # small matmul against the constant table, a division (NOTES: 5-10 us an op at N = 1).
-        h = contract(outer_product(q, q), "homogeneous", _HOMOGENEOUS)
+        h = contract(outer_product(q, q), "homogeneous", HOMOGENEOUS)
         return (h[..., :9] / h[..., 9:]).unflatten(-1, (3, 3))
     if planar(q, 4, _PLANAR_SHARE):
         return closed_form.apply(_QUAT_TO_MATRIX_PLANAR, q)

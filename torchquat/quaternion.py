@@ -284,12 +284,18 @@ def quat_slerp(q0: Tensor, q1: Tensor, t: Union[float, Tensor]) -> Tensor:
     q0 = q0 / torch.linalg.vector_norm(q0, dim=-1, keepdim=True)
     q1 = q1 / torch.linalg.vector_norm(q1, dim=-1, keepdim=True)
     q1 = q1 * torch.where((q0 * q1).sum(-1, keepdim=True) < zero, constant("minus_one", -1.0, q0), one)
-    chords = torch.linalg.vector_norm(torch.stack((q0 - q1, q0 + q1), dim=-2), dim=-1)  # (|q0 - q1|, |q0 + q1|)
-    diff, summ = chords[..., :1], chords[..., 1:]  # (vector_norm's gradient at 0 is 0, not NaN)
-    small = diff < constant("sqrt_eps", torch.finfo(q0.dtype).eps ** 0.5, q0)  # angle below ~sqrt(eps)
-    angle = torch.where(small, one, constant("two", 2.0, q0) * torch.atan2(diff, summ))  # (1: a safe stand-in)
+    difference = q0 - q1
+    square = (difference * difference).sum(-1, keepdim=True)
+    small = square < constant("eps", torch.finfo(q0.dtype).eps, q0)  # |q0 - q1| < sqrt(eps): angle below ~sqrt(eps)
+    # (the square root of 1 where the chord is that short: smooth to any order at q0 = q1, where a
+    # norm's second derivative is NaN; |q0 + q1| >= sqrt(2) after the flip)
+    chord = torch.sqrt(torch.where(small, one, square))
+    angle = torch.where(small, one, constant("two", 2.0, q0) * torch.atan2(chord, torch.linalg.vector_norm(q0 + q1, dim=-1, keepdim=True)))
     times = torch.cat((one - t, t), dim=-1)  # both weights, one sine
-    weights = torch.where(small, times, torch.sin(times * angle) / torch.sin(angle))
+    # near 0: sin(s angle) / sin(angle) = s (1 + (1 - s^2) angle^2 / 6 + ...), angle^2 = |q0 - q1|^2
+    # to that order: the second term is below eps in value, but second derivatives need it
+    series = torch.addcmul(times, times * (one - times * times), square, value=1.0 / 6.0)
+    weights = torch.where(small, series, torch.sin(times * angle) / torch.sin(angle))
     return restore(torch.addcmul(weights[..., :1] * q0, weights[..., 1:], q1), dtype)
 
 
