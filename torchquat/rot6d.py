@@ -199,15 +199,23 @@ class _SpecialProcrustes(torch.autograd.Function):
     @staticmethod
     def setup_context(ctx, inputs, output):
         _, U_signed, S_signed, Vh = output
-        ctx.save_for_backward(U_signed, S_signed, Vh)
+        ctx.save_for_backward(U_signed, S_signed, Vh, inputs[0])
         ctx.save_for_forward(U_signed, S_signed, Vh)
         ctx.mark_non_differentiable(U_signed, S_signed, Vh)
 
     @staticmethod
-    @torch.autograd.function.once_differentiable
     def backward(ctx, grad_R, _gu, _gs, _gv):
-        U, S, Vh = ctx.saved_tensors
-        return matmul3(matmul3(U, _skew_over_sums(matmul3(matmul3(U.mT, grad_R), Vh.mT), S)), Vh)
+        U, S, Vh, M = ctx.saved_tensors
+        with torch.no_grad():
+            grad_M = matmul3(matmul3(U, _skew_over_sums(matmul3(matmul3(U.mT, grad_R), Vh.mT), S)), Vh)
+        if torch.is_grad_enabled() and not _transformed():  # create_graph: the gradient depends on M
+            # through U, S and V, which this backward does not differentiate. Its graph is an error
+            # node on M, raised when a second derivative reaches it (once_differentiable's marker
+            # hangs on grad_R alone, and only if it requires grad: a loss linear in R, such as the
+            # chordal one, got a silently wrong second derivative)
+            grad_M, _ = torch._C._functions.DelayedError(
+                b"rot9d_to_matrix is once differentiable: its gradient cannot be differentiated again", 2)(grad_M, M)
+        return grad_M
 
 
 class _SpecialProcrustesForwardMode(_SpecialProcrustes):
@@ -216,7 +224,7 @@ class _SpecialProcrustesForwardMode(_SpecialProcrustes):
 
     @staticmethod
     def jvp(ctx, tangent_M):
-        U, S, Vh = ctx.saved_tensors
+        U, S, Vh = ctx.saved_tensors[:3]
         W = _skew_over_sums(matmul3(matmul3(U.mT, tangent_M), Vh.mT), S)
         return matmul3(matmul3(U, W), Vh), None, None, None
 
@@ -224,8 +232,11 @@ class _SpecialProcrustesForwardMode(_SpecialProcrustes):
 def _skew_over_sums(Y: Tensor, S: Tensor) -> Tensor:
     """``(Y_ij - Y_ji) / (s_i + s_j)``: the backward's ``Z`` and the forward mode's ``W``."""
     denom = S.unsqueeze(-1) + S.unsqueeze(-2)
-    tiny = torch.finfo(S.dtype).eps
-    denom = torch.where(denom.abs() < tiny, tiny, denom)  # rank <= 1: any finite value
+    # rank <= 1: any finite value. Relative to the largest singular value: the projection is
+    # scale-invariant, and an absolute eps shrank every gradient of a matrix whose singular values
+    # are all below it (1e-8 in float32 already) by s / eps
+    tiny = (S.abs().amax(-1, keepdim=True) * torch.finfo(S.dtype).eps).unsqueeze(-1)
+    denom = torch.where(denom.abs() < tiny, tiny, denom)
     return (Y - Y.mT) / denom
 
 
