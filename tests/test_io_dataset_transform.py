@@ -2,6 +2,7 @@
 
 import pickle
 
+import pytest
 import torch
 from torch.utils.data import DataLoader, Dataset
 
@@ -44,3 +45,11 @@ def test_transform_runs_in_two_dataloader_workers():
     expected = torchquat.convert(dataset.q, "quat", "rot6d")
     torch.testing.assert_close(rot6d, expected)
     assert torch.cat([b["index"] for b in batches]).tolist() == list(range(16))
+
+
+@pytest.mark.parametrize("options,message", [({"convention": "ZYX"}, "convention='ZYX' only applies to Euler angles"),
+                                             ({"degrees": True}, "degrees=True only applies to Euler angles")])
+def test_options_that_would_be_ignored_are_refused_as_by_the_convert_layer(options, message):
+    # ConvertRotation("quat", "matrix", degrees=True) was accepted and did nothing (Convert refuses it)
+    with pytest.raises(ValueError, match="ConvertRotation: " + message):
+        ConvertRotation("quat", "matrix", **options)

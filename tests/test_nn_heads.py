@@ -168,3 +168,23 @@ def test_euler_head_reads_its_outputs_as_zyx_angles():
     Rz = torch.tensor([[c(yaw), -s(yaw), 0], [s(yaw), c(yaw), 0], [0, 0, 1]], dtype=torch.float64)
     Rx = torch.tensor([[1, 0, 0], [0, c(roll), -s(roll)], [0, s(roll), c(roll)]], dtype=torch.float64)
     torch.testing.assert_close(got, Rz @ Rx)  # intrinsic Z then X: R = Rz(yaw) Ry(0) Rx(roll)
+
+
+@pytest.mark.parametrize("representation", ["quat", "rot6d"])
+@pytest.mark.parametrize("dtype,scale", [(torch.float16, 1e-5), (torch.float16, 1e-7), (torch.float32, 1e-39),
+                                         (torch.float32, 1e-44), (torch.float64, 1e-310)])
+def test_tiny_linear_outputs_still_give_rotations(representation, dtype, scale):
+    # the power-of-two scale 2^-e was computed in the output's dtype: inf for float16 outputs below
+    # 3e-5 (a real model's) and for subnormal float32 ones, and inf * y gave NaN rotations
+    head = RotationHead(4, representation).to(dtype)
+    g = torch.Generator().manual_seed(2)
+    with torch.no_grad():
+        head.linear.weight.copy_((torch.randn(head.linear.weight.shape, generator=g, dtype=torch.float64) * scale).to(dtype))
+        head.linear.bias.zero_()
+    R = head(torch.randn(3, 4, generator=g, dtype=torch.float64).to(dtype))
+    assert R.dtype == dtype
+    R = R.double()
+    eye = torch.eye(3, dtype=torch.float64).expand(3, 3, 3)
+    tolerance = 2e-3 if dtype == torch.float16 else 1e-6
+    torch.testing.assert_close(R @ R.mT, eye, rtol=0, atol=tolerance)
+    assert (torch.linalg.det(R) > 0).all()

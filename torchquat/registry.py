@@ -20,7 +20,7 @@ from .matrix import matrix_to_quat_unchecked, quat_to_matrix_unchecked
 from .quaternion import standardized
 from .rot6d import matrix_to_rot6d_unchecked, rot6d_to_matrix_unchecked, rot9d_to_matrix_unchecked
 
-__all__ = ["Representation", "REPRESENTATIONS", "convert", "parse_representation"]
+__all__ = ["Representation", "REPRESENTATIONS", "convert", "parse_representation", "parse_conversion"]
 
 
 class Options(NamedTuple):
@@ -85,6 +85,18 @@ REPRESENTATIONS: Dict[str, Representation] = {r.name: r for r in (
 )}
 
 _HUB_TO_HUB = {("quat", "matrix"): quat_to_matrix_unchecked, ("matrix", "quat"): matrix_to_quat_unchecked}
+
+
+def parse_conversion(src: str, dst: str, fn: str, convention=None, degrees: bool = False):
+    """Both entries and conventions of a conversion (see :func:`parse_representation`), refusing
+    ``convention=`` or ``degrees=True`` when neither side is Euler angles (the layers' and the
+    dataset transform's check: an option they would silently ignore)."""
+    src_rep, src_conv = parse_representation(src, fn, convention)
+    dst_rep, dst_conv = parse_representation(dst, fn, convention)
+    if src_conv is None and dst_conv is None and (convention is not None or degrees):
+        given = f"convention={convention!r}" if convention is not None else f"degrees={degrees!r}"
+        raise ValueError(f"{fn}: {given} only applies to Euler angles, but src={src!r} and dst={dst!r}")
+    return src_rep, src_conv, dst_rep, dst_conv
 
 
 def parse_representation(token: str, fn: str, convention=None):

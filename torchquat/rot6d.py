@@ -134,7 +134,10 @@ def rot6d_to_matrix(x: Tensor) -> Tensor:
 
     The 6 numbers are the first two **columns** of R, ``cat(R[..., :, 0], R[..., :, 1])``, as
     in the paper. PyTorch3D and pytorch-kinematics use the first two *rows* instead: their 6D
-    of ``R`` is torchquat's 6D of ``R.mT``. Any pair of non-collinear vectors is accepted; collinear ones (to rounding) give NaN.
+    of ``R`` is torchquat's 6D of ``R.mT``. Any pair of non-collinear vectors is accepted whose
+    squared norms are normal floats (norms from about 1e-18 to 1e18 in float32, 1e-153 to 1e153 in
+    float64; :class:`torchquat.nn.RotationHead` scales its outputs into that range); collinear ones
+    (to rounding) give NaN.
 
     Args:
         x: two 3-vectors, concatenated.

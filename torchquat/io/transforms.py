@@ -4,7 +4,7 @@ from typing import Any, Optional
 
 from torch import Tensor
 
-from ..registry import convert, parse_representation
+from ..registry import convert, parse_conversion
 
 __all__ = ["ConvertRotation"]
 
@@ -32,8 +32,7 @@ class ConvertRotation:
 
     def __init__(self, src: str, dst: str, key: str = "rotation", convention: Optional[str] = None,
                  degrees: bool = False):
-        parse_representation(src, "ConvertRotation", convention)  # fail early, in the main process
-        parse_representation(dst, "ConvertRotation", convention)
+        parse_conversion(src, dst, "ConvertRotation", convention, degrees)  # fail early, in the main process
         self.src, self.dst, self.key, self.convention, self.degrees = src, dst, key, convention, degrees
 
     def __call__(self, sample: Any) -> Any:

@@ -37,11 +37,14 @@ class RotationHead(nn.Module):
     ================  ====  ==================================================================
 
     Parameters keep ``nn.Linear``'s default initialisation (no bias towards the identity), so an
-    untrained head outputs scattered rotations. Linear outputs of any finite magnitude give
-    orthonormal matrices with det +1 (``"axis_angle"``: while the rotation angle, the output's
-    norm, stays below about 1e19, where its square overflows in float32); NaN or inf outputs
-    (from NaN features, or features so large that the linear layer overflows, near 3e38 in
-    float32) give NaN rotations (never an exception).
+    untrained head outputs scattered rotations. Linear outputs of any finite non-zero magnitude
+    give orthonormal matrices with det +1 (``"axis_angle"``: while the rotation angle, the
+    output's norm, stays below about 1e19, where its square overflows in float32); NaN or inf
+    outputs (from NaN features, or features so large that the linear layer overflows, near 3e38
+    in float32) give NaN rotations (never an exception). An output that is exactly zero is no
+    rotation for ``"quat"`` and ``"rot6d"`` (a zero quaternion, collinear columns): NaN, so do not
+    initialise such a head's weight and bias to zero (``"rot9d"``, ``"axis_angle"`` and
+    ``"euler"`` give the identity there).
 
     Args:
         in_features: size of the last dimension of the input features.
@@ -107,14 +110,21 @@ class RotationHead(nn.Module):
         return self._to_rotation(y)
 
     def _to_rotation(self, y: Tensor) -> Tensor:
+        dtype = y.dtype
         if self.representation in ("rot6d", "quat"):  # scale-invariant: scaled by a power of 2
             # (exact: the same rotation bits) to a largest |entry| in [0.5, 1), no square overflows;
-            # a constant for autograd, whose gradient through the scale is 0 anyway
-            exponent = torch.frexp(y.detach().abs().amax(-1, keepdim=True)).exponent.to(y.dtype)
-            y = y * torch.exp2(-exponent)  # (not torch.ldexp: its gradient to y is 0 in torch 2.13)
+            # a constant for autograd, whose gradient through the scale is 0 anyway. In float32 at
+            # least (float16's 2^e overflows from outputs of 3e-5 on, as float32's does for
+            # subnormal ones: inf times y gave NaN), in two factors (2^148 is not a float32)
+            if dtype in (torch.float16, torch.bfloat16):
+                y = y.float()
+            exponent = torch.frexp(y.detach().abs().amax(-1, keepdim=True)).exponent
+            half = torch.div(exponent, 2, rounding_mode="floor")
+            # (not torch.ldexp: its gradient to y is 0 in torch 2.13)
+            y = y * torch.exp2(half.neg().to(y.dtype)) * torch.exp2((half - exponent).to(y.dtype))
         if self.representation == "quat" and self.output == "quat":
             y = quat_normalize(y)  # quat -> matrix accepts any non-zero quaternion as it is
-        return convert(y, self.representation, self.output, convention=self.convention)
+        return convert(y, self.representation, self.output, convention=self.convention).to(dtype)
 
     def extra_repr(self) -> str:
         text = f"in_features={self.in_features}, representation={self.representation!r}, output={self.output!r}"

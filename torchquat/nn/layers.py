@@ -5,7 +5,7 @@ from typing import Optional
 from torch import Tensor, nn
 
 from ..quaternion import quat_rotate
-from ..registry import convert, parse_representation
+from ..registry import convert, parse_conversion
 
 __all__ = ["Convert", "RotateVectors"]
 
@@ -43,11 +43,7 @@ class Convert(nn.Module):
 
     def __init__(self, src: str, dst: str, convention: Optional[str] = None, degrees: bool = False):
         super().__init__()
-        src_rep, src_conv = parse_representation(src, "Convert", convention)
-        dst_rep, dst_conv = parse_representation(dst, "Convert", convention)
-        if src_conv is None and dst_conv is None and (convention is not None or degrees):
-            given = f"convention={convention!r}" if convention is not None else f"degrees={degrees!r}"
-            raise ValueError(f"Convert: {given} only applies to Euler angles, but src={src!r} and dst={dst!r}")
+        src_rep, src_conv, dst_rep, dst_conv = parse_conversion(src, dst, "Convert", convention, degrees)
         self.src, self.dst, self.convention = src_rep.name, dst_rep.name, None
         if src_conv is not None and dst_conv is not None and src_conv.name != dst_conv.name:
             # "euler:ZYX" -> "euler:xyz": two conventions, kept in the tokens
