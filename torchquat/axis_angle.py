@@ -33,13 +33,15 @@ def _half_angle(v: Tensor, for_autograd: bool = True, twice: bool = False):
         # (theta^2 to an ulp, which 1 - theta^2 / 8 and 1/2 - theta^2 / 48 round away)
         theta_safe = torch.linalg.vector_norm(torch.where(small, constant("unit_3_x", (1.0, 0.0, 0.0), v), v), dim=-1, keepdim=True)
         square = (v * v).sum(-1, keepdim=True)
+        cos_series = torch.add(one, square, alpha=-0.125)
+        sinc_series = torch.add(constant("half", 0.5, v), square, alpha=-1.0 / 48.0)
     else:
         theta_safe = torch.where(small, one, theta) if for_autograd else theta
-        square = theta * theta
+        cos_series = torch.addcmul(one, theta, theta, value=-0.125)
+        sinc_series = torch.addcmul(constant("half", 0.5, v), theta, theta, value=-1.0 / 48.0)
     half = theta_safe * constant("half", 0.5, v)
-    cos_half = torch.where(small, torch.add(one, square, alpha=-0.125), torch.cos(half))
-    sinc_half = torch.where(small, torch.add(constant("half", 0.5, v), square, alpha=-1.0 / 48.0),
-                            torch.sin(half) / theta_safe)
+    cos_half = torch.where(small, cos_series, torch.cos(half))
+    sinc_half = torch.where(small, sinc_series, torch.sin(half) / theta_safe)
     return theta, small, theta_safe, half, cos_half, sinc_half
 
 
