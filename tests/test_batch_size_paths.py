@@ -11,7 +11,7 @@ import torchquat._math as tqmath
 import torchquat._planes as _planes
 from torchquat._dispatch import kernel
 from function_table import ALL, BINARY, DispatchRecorder, assert_paths_agree, quats, singular_quats
-from rotation_samples import lock_angles
+from rotation_samples import cube_rotations, lock_angles
 
 PATH_DEPENDENT = ["quat_to_matrix", "quat_multiply", "quat_rotate", "matrix_to_quat", "axis_angle_to_quat",
                   "quat_to_axis_angle", "quat_geodesic_distance", "matrix_geodesic_distance", "rot6d_to_matrix", "euler_to_quat[ZYZ]", "euler_to_quat[xzy]"] + [
@@ -473,26 +473,11 @@ def test_gimbal_lock_mask_is_the_test_quat_to_euler_applied_at_every_batch_size(
         assert (zero & ~mask).sum() <= rows // 100
 
 
-def _cube_rotations():
-    """The 24 rotations of a cube: signed permutation matrices with det +1, all entries exact,
-    half and quarter turns that put most conventions' middle angle at lock or at 0 / pi."""
-    import itertools
-    out = []
-    for perm in itertools.permutations(range(3)):
-        for signs in itertools.product((1.0, -1.0), repeat=3):
-            R = torch.zeros(3, 3, dtype=torch.float64)
-            for row, (col, sign) in enumerate(zip(perm, signs)):
-                R[row, col] = sign
-            if torch.linalg.det(R) > 0:
-                out.append(R)
-    return torch.stack(out)
-
-
 @pytest.mark.parametrize("convention", sorted(tq.EULER_CONVENTIONS))
 def test_exact_half_turns_give_the_same_angles_on_every_path_and_never_minus_pi(convention):
     # yaw = 180 degrees came out as +pi on one batch size and -pi on another (and -pi for -q where
     # q gave +pi): a wrap into [-pi, pi) on the small path, signed zeros in strided columns
-    cube = _cube_rotations()
+    cube = cube_rotations()
     negative_zeros = torch.where(cube == 0, -0.0, cube)  # (as many matrices written by NumPy code hold)
     q = tq.matrix_to_quat(cube)
     reference = None

@@ -5,6 +5,7 @@ import torch
 
 import torchquat as tq
 from function_table import ALL, assert_paths_agree, compiled_against_eager
+from rotation_samples import cube_rotations
 
 # One representative per kernel; compiling all 100+ table entries would take minutes.
 # every kernel with a column-wise compiled form, and one of each other kind
@@ -122,8 +123,7 @@ def test_past_the_recompile_limit_a_call_runs_eagerly_instead_of_failing(compile
 @pytest.mark.parametrize("convention", ["ZYX", "xyz", "zxz"])
 def test_compiled_exact_half_turns_are_plus_pi_as_eager(convention, compiled):
     # inductor's columns keep a negated zero (-0), whose atan2 against a negative x is -pi
-    from test_batch_size_paths import _cube_rotations
-    cube = _cube_rotations()
+    cube = cube_rotations()
     q = tq.matrix_to_quat(cube)
     for dtype in (torch.float64, torch.float32):
         for x, fn in ((q, tq.quat_to_euler), (-q, tq.quat_to_euler), (cube, tq.matrix_to_euler),

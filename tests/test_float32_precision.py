@@ -94,3 +94,21 @@ def test_float32_accuracy_holds_when_the_user_allows_reduced_precision_matmuls(p
                 assert difference.abs().max() < 2e-5, (precision, n)
     finally:
         _MKLDNN_MATMUL.fp32_precision = previous
+
+
+@pytest.mark.parametrize("angle", [1e3, 1e6, 1e9, -7.3e5 - 0.25])
+def test_large_angles_in_degrees_keep_their_rotation(angle):
+    # degrees were multiplied by pi / 180 first: 1e6 degrees in float32 came out 1e-3 rad off (the
+    # fraction of a turn rounded away); fmod by 360 first is exact
+    from scipy.spatial.transform import Rotation
+    e = torch.tensor([angle, 10.0, 20.0])
+    expected = torch.from_numpy(Rotation.from_euler("ZYX", e.double().numpy() % 360, degrees=True).as_matrix())
+    for R in (tq.euler_to_matrix(e, "ZYX", degrees=True), tq.quat_to_matrix(tq.euler_to_quat(e, "ZYX", degrees=True)),
+              tq.convert(e, "euler:ZYX", "matrix", degrees=True)):
+        torch.testing.assert_close(R.double(), expected, rtol=0, atol=5e-7)
+
+
+def test_angles_within_a_turn_in_degrees_are_converted_as_before():
+    e = torch.tensor([[359.9, -0.001, 45.0], [-359.9, 89.9, -180.0]])
+    expected = tq.euler_to_quat(e * (torch.pi / 180), "ZYX")
+    assert torch.equal(tq.euler_to_quat(e, "ZYX", degrees=True), expected)

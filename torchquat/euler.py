@@ -48,11 +48,16 @@ def euler_to_quat_unchecked(angles: Tensor, convention: EulerConvention) -> Tens
     return closed_form.apply(EULER_TO_QUAT, angles, convention=convention)
 
 
-def _to_radians(angles: Tensor, degrees: bool) -> Tensor:
-    return angles * constant("radians_per_degree", math.pi / 180.0, angles) if degrees else angles
+def to_radians(angles: Tensor, degrees: bool) -> Tensor:
+    """``angles`` in radians. Degrees are first reduced modulo 360 by ``fmod``, which is exact:
+    a large angle (1e6 degrees in float32) keeps its rotation, where the product alone would
+    round away its fraction of a turn; angles within a turn are unchanged bit for bit."""
+    if not degrees:
+        return angles
+    return torch.fmod(angles, constant("full_turn_degrees", 360.0, angles)) * constant("radians_per_degree", math.pi / 180.0, angles)
 
 
-def _to_degrees(angles: Tensor, degrees: bool) -> Tensor:
+def to_degrees(angles: Tensor, degrees: bool) -> Tensor:
     return angles * constant("degrees_per_radian", 180.0 / math.pi, angles) if degrees else angles
 
 
@@ -78,7 +83,7 @@ def euler_to_quat(angles: Tensor, convention: str, degrees: bool = False) -> Ten
     """
     conv = parse_convention(convention, "euler_to_quat")
     angles, dtype = prepare(angles, "euler_to_quat", "angles", (3,))
-    return restore(euler_to_quat_unchecked(_to_radians(angles, degrees), convention=conv), dtype)
+    return restore(euler_to_quat_unchecked(to_radians(angles, degrees), convention=conv), dtype)
 
 
 @kernel(blocked_row_dims=(1,))
@@ -115,7 +120,7 @@ def euler_to_matrix(angles: Tensor, convention: str, degrees: bool = False) -> T
     """
     conv = parse_convention(convention, "euler_to_matrix")
     angles, dtype = prepare(angles, "euler_to_matrix", "angles", (3,))
-    return restore(euler_to_matrix_unchecked(_to_radians(angles, degrees), convention=conv), dtype)
+    return restore(euler_to_matrix_unchecked(to_radians(angles, degrees), convention=conv), dtype)
 
 
 @kernel(blocked_row_dims=(1,))
@@ -204,7 +209,7 @@ def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Option
     conv = parse_convention(convention, "quat_to_euler")
     q, dtype = prepare(q, "quat_to_euler", "q", (4,))
     angles = quat_to_euler_unchecked(q, convention=conv, eps=gimbal_eps(q.dtype) if eps is None else float(eps))
-    return restore(_to_degrees(angles, degrees), dtype)
+    return restore(to_degrees(angles, degrees), dtype)
 
 
 @kernel(blocked_row_dims=(2,))
@@ -243,7 +248,7 @@ def matrix_to_euler(R: Tensor, convention: str, degrees: bool = False, eps: Opti
     conv = parse_convention(convention, "matrix_to_euler")
     R, dtype = prepare(R, "matrix_to_euler", "R", (3, 3))
     angles = matrix_to_euler_unchecked(R, convention=conv, eps=gimbal_eps(R.dtype) if eps is None else float(eps))
-    return restore(_to_degrees(angles, degrees), dtype)
+    return restore(to_degrees(angles, degrees), dtype)
 
 
 def euler_gimbal_lock(q: Tensor, convention: str, eps: Optional[float] = None) -> Tensor:

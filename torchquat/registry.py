@@ -14,7 +14,7 @@ from torch import Tensor
 from ._validation import prepare, restore
 from .axis_angle import axis_angle_to_quat_unchecked, quat_to_axis_angle_unchecked
 from .conventions import gimbal_eps, parse_convention
-from .euler import euler_to_quat_unchecked, quat_to_euler_unchecked
+from .euler import euler_to_quat_unchecked, quat_to_euler_unchecked, to_degrees, to_radians
 from .errors import ConventionError, ShapeError
 from .matrix import matrix_to_quat_unchecked, quat_to_matrix_unchecked
 from .quaternion import standardized
@@ -50,13 +50,12 @@ def _standardized(q: Tensor, _opts: Options) -> Tensor:
 
 
 def _euler_to_quat(x: Tensor, o: Options) -> Tensor:
-    return euler_to_quat_unchecked(x * (math.pi / 180.0) if o.degrees else x, convention=o.convention)
+    return euler_to_quat_unchecked(to_radians(x, o.degrees), convention=o.convention)
 
 
 def _quat_to_euler(q: Tensor, o: Options) -> Tensor:
     eps = gimbal_eps(q.dtype) if o.eps is None else float(o.eps)
-    angles = quat_to_euler_unchecked(q, convention=o.convention, eps=eps)
-    return angles * (180.0 / math.pi) if o.degrees else angles
+    return to_degrees(quat_to_euler_unchecked(q, convention=o.convention, eps=eps), o.degrees)
 
 
 def _identity(x: Tensor, _opts: Options) -> Tensor:
