@@ -494,3 +494,19 @@ def test_exact_half_turns_give_the_same_angles_on_every_path_and_never_minus_pi(
             torch.testing.assert_close(angles, reference, rtol=0, atol=1e-12, msg=f"{rows} rows, {name}")
     # and they are the rotations
     torch.testing.assert_close(tq.euler_to_matrix(reference, convention), cube, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_angles_a_few_ulps_above_minus_pi_stay_within_pi_on_every_path(dtype):
+    # the large batches' wrap, ceil((t3 - pi) / 2 pi), rounded t3 - pi to -2 pi for t3 an ulp or
+    # two above -pi and returned pi plus those ulps: outside SPEC's [-pi, pi]
+    import math
+    g = torch.Generator().manual_seed(0)
+    a = (torch.rand(5000, 3, generator=g, dtype=torch.float64) - 0.5) * 2
+    a[:, 0] = -math.pi + (torch.arange(5000) % 64).double() * 2.0 ** -51
+    q = tq.euler_to_quat(a, "ZYX").to(dtype)
+    limit = torch.tensor(math.pi, dtype=dtype)
+    for rows in (1000, 5000):  # small, column-wise
+        for angles in (tq.quat_to_euler(q[:rows], "ZYX"), tq.matrix_to_euler(tq.quat_to_matrix(q[:rows]), "ZYX"),
+                       tq.quat_to_euler(q[:rows], "xyz"), tq.matrix_to_euler(tq.quat_to_matrix(q[:rows]), "zyz")):
+            assert (angles.abs() <= limit).all()

@@ -235,9 +235,11 @@ def angles_parts(forms, conv: EulerConvention, eps: float, abcd2, out: Optional[
         # to sign: -step D, wrapped by the same passes
         t3 = t3 * torch.where(locked, -step, 1.0)
     # into (-pi, pi], branch-free, exact for angles already in it; an exact half turn is +pi on
-    # every path (t3 - pi is exact there, and -2 pi / 2 pi exactly -1: no rounding decides)
+    # every path (t3 - pi is exact there, and -2 pi / 2 pi exactly -1: no rounding decides). A t3
+    # an ulp or two above -pi rounds t3 - pi to -2 pi and comes out as pi plus those ulps: the
+    # clamp keeps the range ([-pi, pi] in SPEC; pi is within rounding of the exact -pi + ulps)
     turns = torch.ceil((t3 - math.pi) / (2.0 * math.pi))
-    t3 = torch.sub(t3, turns, alpha=2.0 * math.pi, out=final(0) if conv.intrinsic else None)
+    t3 = torch.clamp_max(torch.sub(t3, turns, alpha=2.0 * math.pi), math.pi, out=final(0) if conv.intrinsic else None)
     if conv.intrinsic:
         angles = (t3, middle, t1)
     else:
