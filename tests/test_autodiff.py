@@ -123,3 +123,15 @@ def test_rot9d_second_derivatives_raise_even_for_a_loss_linear_in_the_rotation()
     (g,) = torch.autograd.grad(loss, x, create_graph=True)
     with pytest.raises(RuntimeError, match="once differentiable"):
         torch.autograd.grad(g.pow(2).sum(), layer.weight)
+
+
+def test_rot9d_gradient_at_a_zero_matrix_is_finite():
+    # a zero-initialised rot9d head (documented: the identity) must still train; the relative floor
+    # of s_i + s_j was 0 there (0 / 0)
+    for dtype in (torch.float32, torch.float64):
+        M = torch.zeros(2, 3, 3, dtype=dtype, requires_grad=True)
+        R = tq.rot9d_to_matrix(M)
+        (g,) = torch.autograd.grad((R * torch.randn(2, 3, 3, dtype=dtype)).sum(), M)
+        assert torch.isfinite(g).all()
+        _, tangent = torch.func.jvp(tq.rot9d_to_matrix, (M.detach(),), (torch.ones_like(M),))
+        assert torch.isfinite(tangent).all()

@@ -238,7 +238,8 @@ def _skew_over_sums(Y: Tensor, S: Tensor) -> Tensor:
     # rank <= 1: any finite value. Relative to the largest singular value: the projection is
     # scale-invariant, and an absolute eps shrank every gradient of a matrix whose singular values
     # are all below it (1e-8 in float32 already) by s / eps
-    tiny = (S.abs().amax(-1, keepdim=True) * torch.finfo(S.dtype).eps).unsqueeze(-1)
+    # (at least the smallest normal number: a zero matrix's floor would be 0, and 0 / 0 NaN)
+    tiny = (S.abs().amax(-1, keepdim=True) * torch.finfo(S.dtype).eps).clamp_min(torch.finfo(S.dtype).tiny).unsqueeze(-1)
     denom = torch.where(denom.abs() < tiny, tiny, denom)
     return (Y - Y.mT) / denom
 
