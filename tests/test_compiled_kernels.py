@@ -105,6 +105,7 @@ def test_past_the_recompile_limit_a_call_runs_eagerly_instead_of_failing(compile
     import torchquat._dispatch as dispatch
     monkeypatch.setattr(dispatch, "_backend", "eager")
     monkeypatch.setattr(dispatch, "_compiled", {})
+    monkeypatch.setattr(dispatch, "_past_limit", set())
     torch._dynamo.reset()
     q = tq.random_quat(24, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
     # ranks and unit dimensions: each a graph of its own in one context, more than dynamo keeps
@@ -117,6 +118,19 @@ def test_past_the_recompile_limit_a_call_runs_eagerly_instead_of_failing(compile
         tq.use_compiled_kernels(True)
         torch.testing.assert_close(tq.quat_to_matrix(x), expected, rtol=0, atol=1e-15)
     assert len(dispatch._compiled) == 1  # one context throughout: the limit was reached, and passed
+    # and remembered: later calls neither retry a compile nor warn again (they did, 80x slower)
+    import io
+    import logging
+    log = io.StringIO()
+    handler = logging.StreamHandler(log)
+    logging.getLogger("torch._dynamo").addHandler(handler)
+    try:
+        for _ in range(5):
+            torch.testing.assert_close(tq.quat_to_matrix(x), expected, rtol=0, atol=1e-15)
+    finally:
+        logging.getLogger("torch._dynamo").removeHandler(handler)
+    assert "recompile_limit" not in log.getvalue()
+    assert len(dispatch._past_limit) == 1
 
 
 @pytest.mark.slow

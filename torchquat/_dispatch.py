@@ -26,6 +26,8 @@ __all__ = ["use_compiled_kernels", "compiled_kernels_enabled", "kernel"]
 
 _enabled = os.environ.get("TORCHQUAT_COMPILE", "0").lower() in ("1", "true", "yes", "on")
 _compiled: Dict[Tuple, Callable] = {}
+_past_limit = set()  # compiled functions that reached dynamo's recompile limit
+_set_stance = getattr(torch.compiler, "set_stance", None)  # (torch 2.6 and later)
 _backend = "inductor"  # tests swap in "eager" to check tracing and caching without compiling C++
 # one flag read instead of a device lookup and a per-device query (0.5 us a call at one rotation)
 _any_autocast = getattr(torch._C, "_is_any_autocast_enabled", lambda: True)
@@ -169,11 +171,18 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
             # the call runs eagerly instead of failing (fullgraph=True makes the limit an error).
             context = (torch.is_grad_enabled() and any(t.requires_grad for t in tensors),
                        torch.is_inference_mode_enabled(), tensors[0].dtype)
-            try:
-                return _compiled_for(fn, tuple(sorted(static.items())), context)(*tensors)
-            except Exception as error:
-                if type(error).__name__ != "FailOnRecompileLimitHit":
-                    raise
+            compiled = _compiled_for(fn, tuple(sorted(static.items())), context)
+            if compiled not in _past_limit:
+                try:
+                    return compiled(*tensors)
+                except Exception as error:
+                    if type(error).__name__ != "FailOnRecompileLimitHit":
+                        raise
+                    _past_limit.add(compiled)
+            elif _set_stance is not None:  # its graphs still serve the layouts they were made for;
+                # a new one runs eagerly at once (no guard failure, recompile attempt and warning a call)
+                with _set_stance("eager_on_recompile"):
+                    return compiled(*tensors)
         if (blocked_row_dims is not None
                 and (tensors[0].numel() >= _BLOCKED_FROM or tensors[-1].numel() >= _BLOCKED_FROM)
                 and not torch.compiler.is_compiling() and not torch._C._are_functorch_transforms_active()):
