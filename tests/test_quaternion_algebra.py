@@ -174,3 +174,19 @@ def test_slerp_refuses_a_non_floating_t_tensor(dtype):
     q = tq.random_quat(2, generator=torch.Generator().manual_seed(7))
     with pytest.raises(TypeError, match="quat_slerp: expected t to be a number or a floating-point tensor"):
         tq.quat_slerp(q[0], q[1], torch.ones(1, dtype=dtype))
+
+
+def test_slerp_second_derivatives_are_continuous_at_and_near_equal_inputs():
+    # The Hessian at q0 = q1 was O(1) off (a zeroth-order series), and just outside the series'
+    # band the closed form's second derivatives lose eps / angle^2: H(d) - H(0) must shrink like d
+    w = torch.randn(4, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
+    e = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=torch.float64)
+    u = torch.tensor([0.0, 0.6, 0.0, 0.8], dtype=torch.float64)
+
+    def f(q):
+        return (tq.quat_slerp(q, e, 0.3) * w).sum()
+
+    at_equal = torch.func.hessian(f)(e)
+    assert torch.isfinite(at_equal).all()
+    for d in (1e-9, 1.4e-8, 2e-8, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3):
+        assert (torch.func.hessian(f)(e + d * u) - at_equal).abs().max() < 10 * d

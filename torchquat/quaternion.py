@@ -286,15 +286,20 @@ def quat_slerp(q0: Tensor, q1: Tensor, t: Union[float, Tensor]) -> Tensor:
     q1 = q1 * torch.where((q0 * q1).sum(-1, keepdim=True) < zero, constant("minus_one", -1.0, q0), one)
     difference = q0 - q1
     square = (difference * difference).sum(-1, keepdim=True)
-    small = square < constant("eps", torch.finfo(q0.dtype).eps, q0)  # |q0 - q1| < sqrt(eps): angle below ~sqrt(eps)
+    # Below |q0 - q1|^2 = sqrt(eps) the series: autograd's second derivatives of the closed form
+    # lose eps / angle^2 relative, and the series' next term is below eps
+    small = square < constant("sqrt_eps", torch.finfo(q0.dtype).eps ** 0.5, q0)
     # (the square root of 1 where the chord is that short: smooth to any order at q0 = q1, where a
     # norm's second derivative is NaN; |q0 + q1| >= sqrt(2) after the flip)
     chord = torch.sqrt(torch.where(small, one, square))
     angle = torch.where(small, one, constant("two", 2.0, q0) * torch.atan2(chord, torch.linalg.vector_norm(q0 + q1, dim=-1, keepdim=True)))
     times = torch.cat((one - t, t), dim=-1)  # both weights, one sine
-    # near 0: sin(s angle) / sin(angle) = s (1 + (1 - s^2) angle^2 / 6 + ...), angle^2 = |q0 - q1|^2
-    # to that order: the second term is below eps in value, but second derivatives need it
-    series = torch.addcmul(times, times * (one - times * times), square, value=1.0 / 6.0)
+    # sin(s a) / sin(a) = s (1 + u a^2 / 6 + u (4 + 3 u) a^4 / 360 + O(a^6)), u = 1 - s^2, with
+    # a^2 = c^2 + c^4 / 12 + O(c^6) for the chord c = |q0 - q1| = 2 sin(a / 2)
+    u = one - times * times
+    angle2 = torch.addcmul(square, square, square, value=1.0 / 12.0)
+    inner = torch.addcmul(constant("one_sixth", 1.0 / 6.0, q0), torch.add(constant("four", 4.0, q0), u, alpha=3.0), angle2, value=1.0 / 360.0)
+    series = torch.addcmul(times, times * u * angle2, inner)
     weights = torch.where(small, series, torch.sin(times * angle) / torch.sin(angle))
     return restore(torch.addcmul(weights[..., :1] * q0, weights[..., 1:], q1), dtype)
 
