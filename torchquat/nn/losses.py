@@ -8,6 +8,7 @@ loss and at rotations 180 degrees apart.
 
 from torch import Tensor, nn
 
+from .._math import constant
 from .._validation import prepare_pair, restore
 from ..distance import matrix_geodesic_distance_unchecked, quat_geodesic_distance_unchecked
 from ..quaternion import normalized
@@ -100,7 +101,8 @@ class QuatDistanceLoss(nn.Module):
 
     def _loss(self, input: Tensor, target: Tensor) -> Tensor:
         a, b, dtype = _prepare_pair("QuatDistanceLoss", input, target, (4,))
-        loss = 1.0 - (normalized(a) * normalized(b)).sum(-1).abs()
+        dot = (normalized(a) * normalized(b)).sum(-1).abs()
+        loss = constant("one", 1.0, dot) - dot  # (a Python 1.0 is wrapped into a tensor on every call)
         return restore(reduce(loss, self.reduction), dtype)
 
     def extra_repr(self) -> str:
@@ -136,7 +138,8 @@ class ChordalLoss(nn.Module):
 
     def _loss(self, input: Tensor, target: Tensor) -> Tensor:
         a, b, dtype = _prepare_pair("ChordalLoss", input, target, (3, 3))
-        loss = ((a - b) ** 2).sum((-2, -1))
+        difference = a - b
+        loss = (difference * difference).sum((-2, -1))
         return restore(reduce(loss, self.reduction), dtype)
 
     def extra_repr(self) -> str:
