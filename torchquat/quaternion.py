@@ -247,8 +247,9 @@ def quat_slerp(q0: Tensor, q1: Tensor, t: Union[float, Tensor]) -> Tensor:
     """Spherical linear interpolation along the shortest path (Shoemake 1985).
 
     ``q1`` is negated where ``<q0, q1> < 0`` so the arc is the short one. The angle is computed
-    as ``2 atan2(|q0 - q1|, |q0 + q1|)`` (accurate near 0 and pi), and below ``sqrt(eps)`` the
-    weights fall back to their Taylor limits ``(1 - t, t)``, so gradients stay finite at ``q0 == q1``.
+    as ``2 atan2(|q0 - q1|, |q0 + q1|)`` (accurate near 0 and pi), and where ``|q0 - q1|^2`` is
+    below ``sqrt(eps)`` the weights are their Taylor series to fourth order in the angle, so
+    gradients, and second derivatives, are finite and exact at and near ``q0 == q1``.
 
     Args:
         q0: start quaternions; other norms than 1 are normalised first (zero gives NaN).
@@ -280,9 +281,7 @@ def quat_slerp(q0: Tensor, q1: Tensor, t: Union[float, Tensor]) -> Tensor:
         check_broadcast("quat_slerp", ("q0", "q1", "t"), (q0, q1, t), (1, 1, 1))
     # (constants as tensors: a Python number is wrapped into a tensor on every call, 1 us each)
     zero, one = constant("zero", 0.0, q0), constant("one", 1.0, q0)
-    # unit inputs (a zero quaternion gives NaN, as everywhere, not a plausible rotation)
-    q0 = q0 / torch.linalg.vector_norm(q0, dim=-1, keepdim=True)
-    q1 = q1 / torch.linalg.vector_norm(q1, dim=-1, keepdim=True)
+    q0, q1 = normalized(q0), normalized(q1)  # (a zero quaternion gives NaN, as everywhere, not a plausible rotation)
     q1 = q1 * torch.where((q0 * q1).sum(-1, keepdim=True) < zero, constant("minus_one", -1.0, q0), one)
     difference = q0 - q1
     square = (difference * difference).sum(-1, keepdim=True)
