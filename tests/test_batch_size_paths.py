@@ -14,7 +14,7 @@ from function_table import ALL, BINARY, DispatchRecorder, assert_paths_agree, qu
 from rotation_samples import cube_rotations, lock_angles
 
 PATH_DEPENDENT = ["quat_to_matrix", "quat_multiply", "quat_rotate", "matrix_to_quat", "axis_angle_to_quat",
-                  "quat_to_axis_angle", "quat_geodesic_distance", "matrix_geodesic_distance", "rot6d_to_matrix", "euler_to_quat[ZYZ]", "euler_to_quat[xzy]"] + [
+                  "quat_to_axis_angle", "quat_slerp", "quat_geodesic_distance", "matrix_geodesic_distance", "rot6d_to_matrix", "euler_to_quat[ZYZ]", "euler_to_quat[xzy]"] + [
     f"{fn}[{c}]" for fn in ("euler_to_matrix", "quat_to_euler", "matrix_to_euler") for c in ("ZYX", "xyz", "ZXZ", "yxy")]
 
 
@@ -248,7 +248,8 @@ def test_two_input_functions_broadcast_across_ranks(name, large, layout, monkeyp
 BLOCKED = ["quat_to_matrix", "matrix_to_quat", "euler_to_quat[ZYX]", "euler_to_quat[xzx]", "quat_to_euler[ZYX]",
            "quat_to_euler[xzx]", "euler_to_matrix[ZYX]", "euler_to_matrix[yxy]", "matrix_to_euler[ZYX]",
            "matrix_to_euler[yxy]", "quat_rotate", "axis_angle_to_quat", "quat_to_axis_angle", "axis_angle_to_matrix",
-           "matrix_to_axis_angle", "quat_multiply", "rot6d_to_matrix", "quat_geodesic_distance", "matrix_geodesic_distance"]
+           "matrix_to_axis_angle", "quat_multiply", "rot6d_to_matrix", "quat_geodesic_distance", "matrix_geodesic_distance",
+           "quat_slerp"]
 # (axis-angle -> matrix stacks its columns; the distances' output is one column: no transposing matmul)
 WRITTEN_IN_PLACE = sorted(set(BLOCKED) - {"axis_angle_to_matrix", "quat_geodesic_distance", "matrix_geodesic_distance"})
 BLOCKED_ROWS = tqmath.BLOCK_MIN_BLOCKS * tqmath.BLOCK_ROWS + 777  # (one thread's blocks, and a ragged end)
@@ -351,6 +352,19 @@ def test_one_rotation_for_many_vectors_is_blocked(monkeypatch):
     (whole, whole_ops), (blocked, blocked_ops) = _whole_and_blocked(fn, (q[3], v), monkeypatch)
     assert len(blocked_ops) > 7 * len(whole_ops) and blocked.shape == whole.shape == v.shape
     torch.testing.assert_close(blocked, whole, rtol=0, atol=4 * torch.finfo(torch.float32).eps)
+
+
+def test_one_pair_at_many_times_is_a_large_batch_and_blocked(monkeypatch):
+    # slerp's batch may come from t alone (a whole path between two rotations): the columns, in
+    # blocks, and the numbers of the rows' path
+    q0, q1 = tq.random_quat(2, generator=torch.Generator().manual_seed(6))
+    t = torch.linspace(-0.25, 1.25, BLOCKED_ROWS)
+    (whole, whole_ops), (blocked, blocked_ops) = _whole_and_blocked(tq.quat_slerp, (q0, q1, t), monkeypatch)
+    assert len(blocked_ops) > 7 * len(whole_ops) and blocked.shape == whole.shape == (BLOCKED_ROWS, 4)
+    assert "mm" in whole_ops and "cat" not in whole_ops  # the columns' transposes; the rows stack their two times
+    torch.testing.assert_close(blocked, whole, rtol=0, atol=4 * torch.finfo(torch.float32).eps)
+    rows = torch.cat([tq.quat_slerp(q0, q1, part) for part in t.split(4096)])
+    torch.testing.assert_close(whole, rows, rtol=0, atol=4 * torch.finfo(torch.float32).eps)
 
 
 @pytest.mark.parametrize("final", ["fresh", "view of the lent slice"])

@@ -11,7 +11,7 @@ from rotation_samples import cube_rotations
 # every kernel with a column-wise compiled form, and one of each other kind
 KERNELS = ["quat_to_matrix", "matrix_to_quat", "quat_to_euler[zxz]", "quat_to_euler[YXZ]", "matrix_to_euler[xzy]",
            "euler_to_quat[ZYZ]", "euler_to_matrix[XYZ]", "quat_to_axis_angle", "axis_angle_to_quat", "rot6d_to_matrix",
-           "quat_geodesic_distance", "matrix_geodesic_distance", "quat_rotate", "quat_multiply"]
+           "quat_geodesic_distance", "matrix_geodesic_distance", "quat_rotate", "quat_multiply", "quat_slerp"]
 
 
 @pytest.mark.slow

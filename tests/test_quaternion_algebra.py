@@ -6,9 +6,19 @@ import pytest
 import torch
 
 import torchquat as tq
+import torchquat._math as tqmath
 from rotation_samples import uniform
 
 F64 = torch.float64
+
+
+@pytest.fixture(params=["rows", "strided columns", "planar columns"])
+def slerp_path(request, monkeypatch):
+    """The slerp tests run on each path: rows (small batches), and columns (large batches and the
+    compiled kernel), strided and contiguous."""
+    if request.param != "rows":
+        monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 0)
+        monkeypatch.setattr(tqmath, "PLANAR_ROWS", 0 if request.param == "planar columns" else 10**12)
 
 
 def test_hamilton_rules():
@@ -81,7 +91,7 @@ def test_identity():
     assert torch.equal(tq.quat_to_matrix(tq.quat_identity(dtype=F64)), torch.eye(3, dtype=F64))
 
 
-def test_slerp_endpoints_shortest_path_and_constant_speed():
+def test_slerp_endpoints_shortest_path_and_constant_speed(slerp_path):
     q0, q1 = uniform(30, 4), uniform(30, 5)
     assert (tq.quat_slerp(q0, q1, 0.0) - q0).abs().max() <= 1e-15
     end = tq.quat_slerp(q0, q1, 1.0)
@@ -95,7 +105,7 @@ def test_slerp_endpoints_shortest_path_and_constant_speed():
     assert (tq.quat_slerp(q0, -q1, 0.3) - tq.quat_slerp(q0, q1, 0.3)).abs().max() <= 1e-15
 
 
-def test_slerp_between_equal_and_nearly_equal_rotations():
+def test_slerp_between_equal_and_nearly_equal_rotations(slerp_path):
     q = uniform(5, 6)
     assert (tq.quat_slerp(q, q, 0.4) - q).abs().max() <= 1e-15
     tiny = tq.quat_multiply(q, tq.axis_angle_to_quat(torch.tensor([1e-10, 0.0, 0.0], dtype=F64)))
@@ -148,7 +158,7 @@ def test_convert_quaternion_outputs_are_standardized_and_rot9d_takes_matrices():
     assert torch.allclose(deg, tq.matrix_to_euler(R, "XYZ") * 180 / math.pi)
 
 
-def test_slerp_takes_t_as_a_number_a_sequence_or_a_tensor():
+def test_slerp_takes_t_as_a_number_a_sequence_or_a_tensor(slerp_path):
     import numpy as np
 
     q0 = tq.random_quat(3, generator=torch.Generator().manual_seed(4), dtype=torch.float64)
@@ -159,7 +169,7 @@ def test_slerp_takes_t_as_a_number_a_sequence_or_a_tensor():
     assert (tq.quat_slerp(q0, q1, 0) - q0).abs().max() <= 1e-15  # an int is a number too
 
 
-def test_slerp_of_a_zero_quaternion_is_nan_and_other_norms_are_normalised():
+def test_slerp_of_a_zero_quaternion_is_nan_and_other_norms_are_normalised(slerp_path):
     # a zero quaternion gave a plausible 0.45 q1 (README: "A zero quaternion ... gives NaN")
     q1 = tq.random_quat(3, generator=torch.Generator().manual_seed(5), dtype=torch.float64)
     zero = torch.zeros(3, 4, dtype=torch.float64)
@@ -176,7 +186,7 @@ def test_slerp_refuses_a_non_floating_t_tensor(dtype):
         tq.quat_slerp(q[0], q[1], torch.ones(1, dtype=dtype))
 
 
-def test_slerp_second_derivatives_are_continuous_at_and_near_equal_inputs():
+def test_slerp_second_derivatives_are_continuous_at_and_near_equal_inputs(slerp_path):
     # The Hessian at q0 = q1 was O(1) off (a zeroth-order series), and just outside the series'
     # band the closed form's second derivatives lose eps / angle^2: H(d) - H(0) must shrink like d
     w = torch.randn(4, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
@@ -190,3 +200,32 @@ def test_slerp_second_derivatives_are_continuous_at_and_near_equal_inputs():
     assert torch.isfinite(at_equal).all()
     for d in (1e-9, 1.4e-8, 2e-8, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3):
         assert (torch.func.hessian(f)(e + d * u) - at_equal).abs().max() < 10 * d
+
+
+@pytest.mark.parametrize("layout", [10**12, 0], ids=["strided", "planar"])
+def test_slerp_closed_form_backward_matches_autograd_of_its_forward(layout, monkeypatch):
+    # Large batches train through the columns' closed-form backward: the plain forward's numbers
+    # bit for bit, and autograd's gradients of it for q0, q1 and t, at generic inputs, inside and
+    # just outside the series' band, near the antipode, across the sign flip, and broadcast
+    from torchquat import quaternion
+
+    monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 0)
+    monkeypatch.setattr(tqmath, "PLANAR_ROWS", layout)
+    g = torch.Generator().manual_seed(11)
+    q0 = torch.randn(48, 4, dtype=F64, generator=g)
+    turn = tq.axis_angle_to_quat(torch.randn(48, 3, dtype=F64, generator=g))
+    scale = torch.tensor([1e-9, 1e-5, 1e-4, 1e-2, 0.5, 3.0], dtype=F64).repeat(8).unsqueeze(-1)
+    near = tq.quat_multiply(q0, tq.quat_normalize(torch.cat([torch.ones(48, 1, dtype=F64), turn[:, 1:] * scale], -1)))
+    q1 = torch.cat([near[:24] * 2.0, -near[24:36], torch.randn(12, 4, dtype=F64, generator=g)])
+    t = torch.rand(48, dtype=F64, generator=g) * 1.5 - 0.25
+    weights = torch.randn(48, 4, dtype=F64, generator=g)
+    for inputs in ((q0, q1, t), (q0[:1], q1, t), (q0, q1, torch.tensor(0.3, dtype=F64))):
+        leaves = [x.clone().requires_grad_() for x in inputs]
+        out = tq.quat_slerp(*leaves)
+        assert type(out.grad_fn).__name__ == "_ClosedFormBackward"
+        got = torch.autograd.grad(out, leaves, weights)
+        plain_leaves = [x.clone().requires_grad_() for x in inputs]
+        plain = quaternion._slerp_columns(*plain_leaves)
+        assert torch.equal(out, plain)
+        for a, b in zip(got, torch.autograd.grad(plain, plain_leaves, weights)):
+            assert a.shape == b.shape and ((a - b).abs() / (1.0 + b.abs())).max() < 1e-12

@@ -54,11 +54,14 @@ def _transformed() -> bool:
     return torch._C._are_functorch_transforms_active() or getattr(torch.autograd.forward_ad, "_current_level", -1) >= 0
 
 
-def _closed_form_applies(inputs) -> bool:
+def records_graph(inputs) -> bool:
+    """Whether a call on ``inputs`` records a graph that :func:`apply` gives its closed-form
+    backward (grad mode on, an input requiring grad, and no ``torch.func`` transform)."""
     for x in inputs:  # (requires_grad first: the common no-grad call pays one attribute read)
         if x.requires_grad:
             return torch.is_grad_enabled() and not _transformed()
     return False
+
 
 
 class _ClosedForm(torch.autograd.Function):
@@ -93,7 +96,7 @@ class _ClosedForm(torch.autograd.Function):
 def apply(rule: Rule, *inputs: Tensor, **options):
     """``rule``'s output with its closed-form backward when autograd records; ``rule.plain`` under
     transforms; else ``rule.values`` (or ``rule.plain`` if it has none)."""
-    if _closed_form_applies(inputs):
+    if records_graph(inputs):
         return _ClosedForm.apply(rule, options, *inputs)
     return apply_without_closed_form(rule, *inputs, **options)
 

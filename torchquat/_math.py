@@ -26,6 +26,14 @@ def sum_of_squares(columns) -> Tensor:
     return total
 
 
+def sum_of_products(a, b) -> Tensor:
+    """``sum(x * y for x, y in zip(a, b))``, in one pass per pair of columns."""
+    total = a[0] * b[0]
+    for x, y in zip(a[1:], b[1:]):
+        total = torch.addcmul(total, x, y)
+    return total
+
+
 def zero_to_inf(x: Tensor) -> Tensor:
     """``x`` with its zeros replaced by ``inf``: ``v / zero_to_inf(|v|)`` is the unit vector of ``v``,
     and 0 (as ``vector_norm``'s gradient) where the norm is 0, also where it underflowed to 0 for a
