@@ -354,6 +354,14 @@ def test_one_rotation_for_many_vectors_is_blocked(monkeypatch):
     torch.testing.assert_close(blocked, whole, rtol=0, atol=4 * torch.finfo(torch.float32).eps)
 
 
+def test_a_batch_from_a_middle_argument_is_blocked(monkeypatch):
+    # slerp(one q0, many q1, a number): the batch comes from neither the first nor the last tensor
+    q0, q1 = (x.to(torch.float32) for x in _tiled(ALL["quat_slerp"][1](), BLOCKED_ROWS))
+    (whole, whole_ops), (blocked, blocked_ops) = _whole_and_blocked(lambda a, b: tq.quat_slerp(a, b, 0.3), (q0[3], q1), monkeypatch)
+    assert len(blocked_ops) > 7 * len(whole_ops) and blocked.shape == whole.shape == q1.shape
+    torch.testing.assert_close(blocked, whole, rtol=0, atol=4 * torch.finfo(torch.float32).eps)
+
+
 def test_one_pair_at_many_times_is_a_large_batch_and_blocked(monkeypatch):
     # slerp's batch may come from t alone (a whole path between two rotations): the columns, in
     # blocks, and the numbers of the rows' path
@@ -524,3 +532,31 @@ def test_angles_a_few_ulps_above_minus_pi_stay_within_pi_on_every_path(dtype):
         for angles in (tq.quat_to_euler(q[:rows], "ZYX"), tq.matrix_to_euler(tq.quat_to_matrix(q[:rows]), "ZYX"),
                        tq.quat_to_euler(q[:rows], "xyz"), tq.matrix_to_euler(tq.quat_to_matrix(q[:rows]), "zyz")):
             assert (angles.abs() <= limit).all()
+
+
+def _batched_gradients_match_a_loop(fn, inputs):
+    leaves = tuple(x.clone().requires_grad_() for x in inputs)
+    out = fn(*leaves)
+    grads = torch.randn((3,) + out.shape, dtype=out.dtype, generator=torch.Generator().manual_seed(4))
+    batched = torch.autograd.grad(out, leaves, grads, is_grads_batched=True)
+    for k, g in enumerate(grads):
+        for got, expected in zip(batched, torch.autograd.grad(fn(*leaves), leaves, g)):
+            torch.testing.assert_close(got[k], expected, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", sorted(ALL))
+def test_batched_gradients_match_a_loop_on_small_batches(name):
+    # torch.autograd.functional.jacobian(vectorize=True) runs the backward under autograd's
+    # legacy vmap (is_grads_batched)
+    fn, generic, _ = ALL[name]
+    _batched_gradients_match_a_loop(fn, generic())
+
+
+@pytest.mark.parametrize("name", PATH_DEPENDENT)
+def test_batched_gradients_match_a_loop_on_large_batches(name, large_batches):
+    # the closed forms' out= writes and broadcasts have no batching rule there (a RuntimeError
+    # from quat_to_matrix, rot6d, quat_to_axis_angle and slerp): their backward differentiates
+    # the plain forward instead
+    fn, generic, _ = ALL[name]
+    large_batches()
+    _batched_gradients_match_a_loop(fn, generic())

@@ -83,6 +83,9 @@ def test_the_public_function_takes_the_closed_form_backward(name):
         _assert_close(g.unsqueeze(-1), expected.unsqueeze(-1))
 
 
+_COLUMNS_WITH_A_GRAPH_ABOVE = {"axis_angle_to_quat": 768, "quat_to_axis_angle": 512}
+
+
 @pytest.mark.parametrize("rows", [1, 7, 300, 1000])  # 1000: above quat_to_axis_angle's closed form
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_values_without_a_graph_equal_the_plain_forward_bit_for_bit(name, rows):
@@ -92,18 +95,23 @@ def test_values_without_a_graph_equal_the_plain_forward_bit_for_bit(name, rows):
     x = torch.cat([singular(), generic(3000, seed=7)])[:rows]
     expected = plain(x)
     torch.testing.assert_close(public(x), expected, rtol=0, atol=0, equal_nan=True)
-    torch.testing.assert_close(public(x.clone().requires_grad_()).detach(), expected, rtol=0, atol=0, equal_nan=True)
+    # (with a graph to record, batches above these bounds take the columns' closed form, faster
+    # forward and backward there: the same numbers to rounding)
+    atol = 4 * torch.finfo(F64).eps if rows > _COLUMNS_WITH_A_GRAPH_ABOVE.get(name, rows) else 0
+    torch.testing.assert_close(public(x.clone().requires_grad_()).detach(), expected, rtol=0, atol=atol, equal_nan=True)
     with torch.no_grad():
         torch.testing.assert_close(public(x.clone().requires_grad_()), expected, rtol=0, atol=0, equal_nan=True)
 
 
-def test_batches_above_the_closed_form_get_the_same_gradient():
-    # (axis_angle_to_quat has no such batches: above its closed form the columns take theirs)
-    _, _, public, generic, _ = CASES["quat_to_axis_angle"]
-    x = generic(1500, seed=6)  # autograd through the plain small-batch forward
+@pytest.mark.parametrize("name", sorted(_COLUMNS_WITH_A_GRAPH_ABOVE))
+def test_batches_above_the_closed_form_get_the_same_gradient(name):
+    # with a graph, larger batches take the columns' closed form (before, quat_to_axis_angle's
+    # autograd through the table up to 32,768 rows: 1.1-1.4x slower forward and backward)
+    _, _, public, generic, _ = CASES[name]
+    x = generic(1500, seed=6)
     leaf = x.clone().requires_grad_()
     out = public(leaf)
-    assert type(out.grad_fn).__name__ != "_ClosedFormBackward"
+    assert type(out.grad_fn).__name__ == "_ClosedFormBackward"
     (g,) = torch.autograd.grad(out.sum(), leaf)
     pieces = [chunk.clone().requires_grad_() for chunk in x.split(100)]
     g_pieces = torch.autograd.grad(sum(public(p).sum() for p in pieces), pieces)

@@ -229,3 +229,15 @@ def test_slerp_closed_form_backward_matches_autograd_of_its_forward(layout, monk
         assert torch.equal(out, plain)
         for a, b in zip(got, torch.autograd.grad(plain, plain_leaves, weights)):
             assert a.shape == b.shape and ((a - b).abs() / (1.0 + b.abs())).max() < 1e-12
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32], ids=["float64", "float32"])
+def test_slerp_between_orthogonal_quaternions_keeps_q1_on_every_path(dtype, slerp_path):
+    # <q0, q1> = 0 (a half turn apart): both arcs are equally short, and the dot products round
+    # to +-1e-17 differently on each path (fused multiply-adds in the columns'); the choice
+    # depended on the batch size (midpoints 180 degrees apart on half the rows)
+    q0 = tq.random_quat(3000, generator=torch.Generator().manual_seed(12), dtype=dtype)
+    for unit in torch.eye(4, dtype=dtype)[1:]:
+        q1 = tq.quat_multiply(q0, unit) * 3.0
+        expected = (q0 + q1 / 3.0) * math.sqrt(0.5)  # q1 kept: equal weights sin(pi / 4) / sin(pi / 2)
+        torch.testing.assert_close(tq.quat_slerp(q0, q1, 0.5), expected, rtol=0, atol=8 * torch.finfo(dtype).eps)

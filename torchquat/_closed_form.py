@@ -49,6 +49,9 @@ def jacobian_rule(plain: Callable, with_jacobian: Callable, values: Optional[Cal
     return Rule(plain, forward, backward, values)
 
 
+_legacy_batched = getattr(torch._C._functorch, "is_legacy_batchedtensor", lambda x: False)
+
+
 def _transformed() -> bool:
     """Whether ``torch.func`` transforms or forward-mode AD are active (they need the plain forward)."""
     return torch._C._are_functorch_transforms_active() or getattr(torch.autograd.forward_ad, "_current_level", -1) >= 0
@@ -85,6 +88,14 @@ class _ClosedForm(torch.autograd.Function):
             output = ctx.rule.plain(*inputs, **ctx.options)
             targets = [x for x, w in zip(inputs, wanted) if w]
             found = iter(torch.autograd.grad(output, targets, grad, create_graph=True, allow_unused=True))
+            return (None, None, *(next(found) if w else None for w in wanted))
+        if _legacy_batched(grad):  # autograd's is_grads_batched (jacobian(vectorize=True)): its
+            # legacy vmap has no batching rule for the closed forms' out= writes and broadcasts,
+            # where autograd's own backward formulas have them: differentiate the plain forward
+            with torch.enable_grad():
+                inputs = [x.detach().requires_grad_(w) for x, w in zip(inputs, wanted)]
+                output = ctx.rule.plain(*inputs, **ctx.options)
+                found = iter(torch.autograd.grad(output, [x for x, w in zip(inputs, wanted) if w], grad, allow_unused=True))
             return (None, None, *(next(found) if w else None for w in wanted))
         grads = ctx.rule.backward(grad, inputs, saved, **ctx.options)
         result = [None, None]

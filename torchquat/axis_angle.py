@@ -82,7 +82,8 @@ def axis_angle_to_quat_unchecked(v: Tensor) -> Tensor:
     # Up to 1,024 rows one closed-form node on the table path; above, its broadcast (..., 3, 4)
     # products cost more per row, and the columns with their own closed form are 1.4-1.9x faster
     # forward+backward at 2,048-4,096 rows (their forward is 0.8-1.0x of the table's there).
-    if not is_small(v, 3, share=0.25):
+    # (with a gradient to record, the columns' closed form from 769 rows: 0.89x the time at 1,000)
+    if not is_small(v, 3, share=0.1875 if closed_form.records_graph((v,)) else 0.25):
         if torch.compiler.is_compiling():
             return _axis_angle_to_quat_columnwise(v)
         return closed_form.apply(_AXIS_ANGLE_TO_QUAT_COLUMNWISE, v)
@@ -160,8 +161,8 @@ def _quat_to_axis_angle_with_jacobian(q: Tensor):
     return u * m, torch.addcmul(eye, column.unsqueeze(-1), u.unsqueeze(-2), value=-1.0)
 
 
-# Columns with their closed form from 32,768 rows: forward+backward 0.81-0.67x of the table path's
-# time at 8-32k rows (0.47x at 1e6), while the table's forward stays ahead up to ~100k (1.16x at 32k)
+# Without a gradient to record, the columns from 32,768 rows (the table's forward stays ahead up
+# to ~100k, 1.16x at 32k); with one, their closed form from 513 rows (see below; 0.47x at 1e6)
 _COLUMNWISE_SHARE = 8.0
 _QUAT_TO_AXIS_ANGLE = jacobian_rule(_quat_to_axis_angle_small, _quat_to_axis_angle_with_jacobian, _quat_to_axis_angle_values)
 
@@ -172,7 +173,9 @@ def quat_to_axis_angle_unchecked(q: Tensor) -> Tensor:
         return _quat_to_axis_angle_columnwise(q)
     if is_small(q, 4, share=0.125, gpu_share=4):  # closed form vs autograd: crossover measured near 700 rows
         return closed_form.apply(_QUAT_TO_AXIS_ANGLE, q)
-    if not is_small(q, 4, share=_COLUMNWISE_SHARE):
+    # with a gradient to record, the columns' closed form beats the table's autograd from here
+    # (forward+backward 0.94x the time at 768 rows, 0.85x at 1,536, 0.72x at 4,096)
+    if closed_form.records_graph((q,)) or not is_small(q, 4, share=_COLUMNWISE_SHARE):
         return closed_form.apply(_QUAT_TO_AXIS_ANGLE_COLUMNWISE, q)
     return closed_form.apply_without_closed_form(_QUAT_TO_AXIS_ANGLE, q)
 

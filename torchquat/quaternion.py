@@ -253,12 +253,20 @@ def _slerp_series(s: Tensor, angle2: Tensor) -> Tensor:
     return torch.addcmul(s, s * u * angle2, inner)
 
 
+def _arc_tie(x: Tensor, sign: float) -> Tensor:
+    """``sign * 8 eps``. ``q1`` is negated where ``<p, q> < -8 eps`` (``p``, ``q`` the unit inputs):
+    within that bound the two arcs are equally short to rounding, and each path's dot product
+    rounds differently (fused multiply-adds in the columns' and the compiled loop's), so every
+    path keeps ``q1`` there, and exactly orthogonal inputs give one answer at every batch size."""
+    return constant("arc_tie_minus" if sign < 0 else "arc_tie_plus", sign * 8.0 * torch.finfo(x.dtype).eps, x)
+
+
 def _slerp_rows(q0: Tensor, q1: Tensor, t: Tensor) -> Tensor:
     """Small batches, row by row (few dispatches); ``t`` shaped ``(..., 1)``."""
     # (constants as tensors: a Python number is wrapped into a tensor on every call, 1 us each)
-    zero, one = constant("zero", 0.0, q0), constant("one", 1.0, q0)
+    one = constant("one", 1.0, q0)
     q0, q1 = normalized(q0), normalized(q1)  # (a zero quaternion gives NaN, as everywhere, not a plausible rotation)
-    q1 = q1 * torch.where((q0 * q1).sum(-1, keepdim=True) < zero, constant("minus_one", -1.0, q0), one)
+    q1 = q1 * torch.where((q0 * q1).sum(-1, keepdim=True) < _arc_tie(q0, -1.0), constant("minus_one", -1.0, q0), one)
     difference = q0 - q1
     square = (difference * difference).sum(-1, keepdim=True)
     # Below |q0 - q1|^2 = sqrt(eps) the series: autograd's second derivatives of the closed form
@@ -277,15 +285,16 @@ def _slerp_rows(q0: Tensor, q1: Tensor, t: Tensor) -> Tensor:
 
 def _slerp_columns_parts(q0: Tensor, q1: Tensor, t: Tensor):
     """Large batches and compiled kernels, column by column: the rows' steps with the
-    normalisations and the sign of the short arc folded into one scale per input (about 70 passes
-    over columns, against 25 over rows and their broadcasts: 110 against 47 ms per 1e6 rows,
-    float32, one thread). Returns the output and what the closed-form backward needs."""
+    normalisations and the sign of the short arc folded into one scale per input. About 70 passes
+    over columns in place of 25 over rows and their broadcasts, yet faster: per 1e6 rows (float32,
+    one thread) 47 ms forward against the rows' 110, 34 in blocks. Returns the output and what the
+    closed-form backward needs."""
     a, b = columns(q0, share=_PLANAR_SHARE), columns(q1, share=_PLANAR_SHARE)
     one = constant("one", 1.0, t)
     scale0 = torch.rsqrt(sum_of_squares(a))  # (inf for a zero quaternion: 0 * inf is NaN below)
-    dot = sum_of_products(a, b)
-    # q1's scale takes the sign of the short arc: + where <q0, q1> >= 0 (+0 for -0, as the rows' test)
-    scale1 = torch.copysign(torch.rsqrt(sum_of_squares(b)), dot + constant("zero", 0.0, dot))
+    scale1 = torch.rsqrt(sum_of_squares(b))
+    # q1's scale takes the sign of the short arc, as the rows' test: - where <p, q> < -8 eps
+    scale1 = torch.copysign(scale1, torch.addcmul(_arc_tie(scale1, 1.0), sum_of_products(a, b), scale0 * scale1))
     chord = [torch.addcmul(x * scale0, y, scale1, value=-1.0) for x, y in zip(a, b)]  # p - q, unit p and q
     square = sum_of_squares(chord)
     small = square < constant("sqrt_eps", torch.finfo(square.dtype).eps ** 0.5, square)
@@ -365,7 +374,7 @@ def quat_slerp_unchecked(q0: Tensor, q1: Tensor, t: Tensor) -> Tensor:
     """Unchecked :func:`quat_slerp` of ``(..., 4)`` inputs with ``t`` of (broadcasting) batch shape."""
     if torch.compiler.is_compiling():  # (one fused loop, and autograd of it)
         return _slerp_columns(q0, q1, t)
-    # with a gradient to record, the columns' closed form wins from 512 rows (forward and backward
+    # with a gradient to record, the columns' closed form wins above 512 rows (forward and backward
     # 0.87x the rows' time at 1,000); without one, from about 2,000 (0.73x at 4,096)
     share = 0.125 if closed_form.records_graph((q0, q1, t)) else 1.0
     if is_small(q0, 4, share) and is_small(q1, 4, share) and is_small(t, 1, share):
@@ -376,12 +385,13 @@ def quat_slerp_unchecked(q0: Tensor, q1: Tensor, t: Tensor) -> Tensor:
 def quat_slerp(q0: Tensor, q1: Tensor, t: Union[float, Tensor]) -> Tensor:
     """Spherical linear interpolation along the shortest path (Shoemake 1985).
 
-    ``q1`` is negated where ``<q0, q1> < 0`` so the arc is the short one. The angle comes from
+    ``q1`` is negated where ``<q0, q1> < 0`` so the arc is the short one (within ``8 eps`` of 0, for
+    unit inputs, the arcs are equally short and ``q1`` is kept on every path). The angle comes from
     the chord ``|q0 - q1|`` of the normalised inputs (accurate near 0 and pi), and where its
     square is below ``sqrt(eps)`` the weights are their Taylor series to fourth order in the
     angle, so gradients, and second derivatives, are finite and exact at and near ``q0 == q1``.
     Batches of a few rows go row by row (few dispatches); larger ones column by column, with a
-    closed-form backward pass (from 512 rows with a gradient to record, else from 4,096).
+    closed-form backward pass (above 512 rows with a gradient to record, else above 4,096).
 
     Args:
         q0: start quaternions; other norms than 1 are normalised first (zero gives NaN).
