@@ -11,7 +11,8 @@ from torch import Tensor
 from . import _closed_form as closed_form
 from ._closed_form import Rule, jacobian_rule
 from ._dispatch import kernel
-from ._math import HALF_IDENTITY, constant, contract, is_small, outer_product, small_angle_threshold, sum_of_squares
+from ._math import (HALF_IDENTITY, constant, contract, is_small, outer_product, small_angle_threshold,
+                    sum_of_products, sum_of_squares)
 from ._planes import columns, plane_buffer, rows, slot
 from ._validation import prepare, restore
 from .matrix import HOMOGENEOUS, matrix_to_quat_unchecked, quat_to_matrix_unchecked
@@ -82,12 +83,12 @@ def axis_angle_to_quat_unchecked(v: Tensor) -> Tensor:
     # Up to 1,024 rows one closed-form node on the table path; above, its broadcast (..., 3, 4)
     # products cost more per row, and the columns with their own closed form are 1.4-1.9x faster
     # forward+backward at 2,048-4,096 rows (their forward is 0.8-1.0x of the table's there).
-    # (with a gradient to record, the columns' closed form from 769 rows: 0.89x the time at 1,000)
-    if not is_small(v, 3, share=0.1875 if closed_form.records_graph((v,)) else 0.25):
-        if torch.compiler.is_compiling():
-            return _axis_angle_to_quat_columnwise(v)
-        return closed_form.apply(_AXIS_ANGLE_TO_QUAT_COLUMNWISE, v)
-    return closed_form.apply(_AXIS_ANGLE_TO_QUAT, v)
+    # With a gradient to record, the columns' closed form from 769 rows (0.89x the time at 1,000).
+    if is_small(v, 3, share=0.1875) or (is_small(v, 3, share=0.25) and not closed_form.records_graph((v,))):
+        return closed_form.apply(_AXIS_ANGLE_TO_QUAT, v)
+    if torch.compiler.is_compiling():
+        return _axis_angle_to_quat_columnwise(v)
+    return closed_form.apply(_AXIS_ANGLE_TO_QUAT_COLUMNWISE, v)
 
 
 def axis_angle_to_quat(v: Tensor) -> Tensor:
@@ -224,10 +225,7 @@ def _axis_angle_to_quat_columnwise_backward(grad: Tensor, inputs, saved):
     # (nothing differentiates this backward, so the dropped branch's 0 / 0 at x = 0 is harmless)
     series = torch.addcmul(constant("minus_third", -1.0 / 3.0, x2), x2, constant("thirtieth", 1.0 / 30.0, x2))
     k = torch.where(small, series, (w - s) / x2)
-    dot = g_u[0] * h[0]
-    for g, c in zip(g_u[1:], h[1:]):
-        dot = torch.addcmul(dot, g, c)
-    along = torch.addcmul(k * dot, s, g_w, value=-1.0)
+    along = torch.addcmul(k * sum_of_products(g_u, h), s, g_w, value=-1.0)
     buffer = plane_buffer(3, h)
     g_v = [torch.addcmul(s * g, along, c, out=slot(buffer, i)) for i, (g, c) in enumerate(zip(g_u, h))]
     return (rows(g_v if buffer is None else buffer),)

@@ -6,7 +6,7 @@ from torch import Tensor
 from . import _closed_form as closed_form
 from ._closed_form import Rule
 from ._dispatch import kernel
-from ._math import constant, is_small, safe_sqrt, sum_of_squares, zero_to_inf
+from ._math import constant, is_small, safe_sqrt, sum_of_products, sum_of_squares, zero_to_inf
 from ._planes import columns, planar, plane_buffer, rows, slot
 from ._validation import prepare_pair, restore
 
@@ -61,8 +61,8 @@ _QUAT_DISTANCE = Rule(_quat_distance_small, _quat_distance_parts, _quat_distance
 def quat_geodesic_distance_unchecked(q1: Tensor, q2: Tensor) -> Tensor:
     # The columns win from about 1,536 rows forward (0.62x the chords' time at 4,096), and
     # forward+backward from about 3,072 (0.91x at 4,096)
-    share = 1.0 if closed_form.records_graph((q1, q2)) else 0.375
-    if is_small(q1, 4, share) and is_small(q2, 4, share):
+    if (is_small(q1, 4, 0.375) and is_small(q2, 4, 0.375)) or (
+            is_small(q1, 4) and is_small(q2, 4) and closed_form.records_graph((q1, q2))):
         return closed_form.apply(_QUAT_DISTANCE, q1, q2)
     if torch.compiler.is_compiling():
         return _quat_distance_columnwise(q1, q2)
@@ -84,9 +84,7 @@ def _quat_distance_columnwise_parts(q1: Tensor, q2: Tensor, safe: bool = False):
     backward needs; ``safe``: a norm whose gradient is 0 at 0 (for autograd; the closed form sets it).
     """
     a, b = columns_a, columns_b = columns(q1, share=_QUAT_PLANAR_SHARE), columns(q2, share=_QUAT_PLANAR_SHARE)
-    dot = a[0] * b[0]
-    for i in range(1, 4):
-        dot = torch.addcmul(dot, a[i], b[i])
+    dot = sum_of_products(a, b)
     if torch.compiler.is_compiling():
         # Code generators contract a*b - c*d into fma(a, b, -(c*d)), which leaves c*d's rounding
         # error (not 0) for equal inputs, and so an O(1) gradient at the kink instead of 0 (seen
@@ -213,9 +211,7 @@ def _matrix_distance_columnwise_parts(R1: Tensor, R2: Tensor, safe: bool = False
                 total = torch.addcmul(total, a[3 * j + k], d[3 * l + k])
             total = torch.addcmul(total, a[3 * l + k], d[3 * j + k], value=-1.0)
         vee.append(total)
-    trace = a[0] * b[0]
-    for x, y in zip(a[1:], b[1:]):
-        trace = torch.addcmul(trace, x, y)
+    trace = sum_of_products(a, b)
     wedge2 = sum_of_squares(vee)
     wedge, cosine = safe_sqrt(wedge2) if safe else torch.sqrt(wedge2), trace - 1.0
     return torch.atan2(wedge, cosine), (wedge2, wedge, cosine, *vee, *a, *b)

@@ -369,6 +369,10 @@ def _slerp_columns_backward(grad: Tensor, inputs, saved):
 _SLERP_COLUMNWISE = Rule(_slerp_columns, _slerp_columns_parts, _slerp_columns_backward)
 
 
+def _slerp_small(q0: Tensor, q1: Tensor, t: Tensor, share: float) -> bool:
+    return is_small(q0, 4, share) and is_small(q1, 4, share) and is_small(t, 1, share)
+
+
 @kernel(blocked_row_dims=(1, 1, 0))
 def quat_slerp_unchecked(q0: Tensor, q1: Tensor, t: Tensor) -> Tensor:
     """Unchecked :func:`quat_slerp` of ``(..., 4)`` inputs with ``t`` of (broadcasting) batch shape."""
@@ -376,8 +380,7 @@ def quat_slerp_unchecked(q0: Tensor, q1: Tensor, t: Tensor) -> Tensor:
         return _slerp_columns(q0, q1, t)
     # with a gradient to record, the columns' closed form wins above 512 rows (forward and backward
     # 0.87x the rows' time at 1,000); without one, from about 2,000 (0.73x at 4,096)
-    share = 0.125 if closed_form.records_graph((q0, q1, t)) else 1.0
-    if is_small(q0, 4, share) and is_small(q1, 4, share) and is_small(t, 1, share):
+    if _slerp_small(q0, q1, t, 0.125) or (_slerp_small(q0, q1, t, 1.0) and not closed_form.records_graph((q0, q1, t))):
         return _slerp_rows(q0, q1, t.unsqueeze(-1))
     return closed_form.apply(_SLERP_COLUMNWISE, q0, q1, t)
 
