@@ -125,6 +125,17 @@ def test_rot9d_second_derivatives_raise_even_for_a_loss_linear_in_the_rotation()
         torch.autograd.grad(g.pow(2).sum(), layer.weight)
 
 
+def test_rot9d_batched_gradients_work_and_a_differentiable_batched_jacobian_raises():
+    # jacobian(vectorize=True) runs the backward under autograd's legacy vmap; with create_graph
+    # the error node on a batched gradient crashed the process (segfault): it raises at once now
+    x = torch.randn(4, 9, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    jacobian = torch.autograd.functional.jacobian
+    torch.testing.assert_close(jacobian(tq.rot9d_to_matrix, x, vectorize=True), jacobian(tq.rot9d_to_matrix, x),
+                               rtol=0, atol=1e-14)
+    with pytest.raises(RuntimeError, match="once differentiable"):
+        jacobian(tq.rot9d_to_matrix, x, vectorize=True, create_graph=True)
+
+
 def test_rot9d_gradient_at_a_zero_matrix_is_finite():
     # a zero-initialised rot9d head (documented: the identity) must still train; the relative floor
     # of s_i + s_j was 0 there (0 / 0)

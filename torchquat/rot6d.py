@@ -6,7 +6,7 @@ import torch
 from torch import Tensor
 
 from . import _closed_form as closed_form
-from ._closed_form import Rule, _transformed
+from ._closed_form import Rule, _legacy_batched, _transformed
 from ._dispatch import kernel
 from ._math import constant, is_small, matmul3, sum_of_squares
 from ._planes import columns, plane_buffer, rows, slot
@@ -177,6 +177,9 @@ def matrix_to_rot6d(R: Tensor) -> Tensor:
     return restore(matrix_to_rot6d_unchecked(R), dtype)
 
 
+_ONCE_DIFFERENTIABLE = "rot9d_to_matrix is once differentiable: its gradient cannot be differentiated again"
+
+
 class _SpecialProcrustes(torch.autograd.Function):
     """``R = U diag(1, 1, det(U V^T)) V^T`` with a closed-form backward.
 
@@ -216,8 +219,10 @@ class _SpecialProcrustes(torch.autograd.Function):
             # node on M, raised when a second derivative reaches it (once_differentiable's marker
             # hangs on grad_R alone, and only if it requires grad: a loss linear in R, such as the
             # chordal one, got a silently wrong second derivative)
-            grad_M, _ = torch._C._functions.DelayedError(
-                b"rot9d_to_matrix is once differentiable: its gradient cannot be differentiated again", 2)(grad_M, M)
+            if _legacy_batched(grad_R):  # (is_grads_batched: an error node on a batched gradient
+                # crashes the process in torch 2.13, so the error comes now)
+                raise RuntimeError(_ONCE_DIFFERENTIABLE)
+            grad_M, _ = torch._C._functions.DelayedError(_ONCE_DIFFERENTIABLE.encode(), 2)(grad_M, M)
         return grad_M
 
 
