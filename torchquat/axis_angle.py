@@ -175,7 +175,7 @@ def quat_to_axis_angle_unchecked(q: Tensor) -> Tensor:
     if is_small(q, 4, share=0.125, gpu_share=4):  # closed form vs autograd: crossover measured near 700 rows
         return closed_form.apply(_QUAT_TO_AXIS_ANGLE, q)
     # with a gradient to record, the columns' closed form beats the table's autograd from here
-    # (forward+backward 0.94x the time at 768 rows, 0.85x at 1,536, 0.72x at 4,096)
+    # (forward+backward 0.96x the time at 768 rows, 0.95x at 1,000, 0.85x at 2,048, 0.73x at 4,096)
     if closed_form.records_graph((q,)) or not is_small(q, 4, share=_COLUMNWISE_SHARE):
         return closed_form.apply(_QUAT_TO_AXIS_ANGLE_COLUMNWISE, q)
     return closed_form.apply_without_closed_form(_QUAT_TO_AXIS_ANGLE, q)

@@ -90,7 +90,7 @@ def euler_to_quat(angles: Tensor, convention: str, degrees: bool = False) -> Ten
 def euler_to_matrix_unchecked(angles: Tensor, convention: EulerConvention) -> Tensor:
     if is_small(angles, 3, share=1 / 16, gpu_share=0.25):  # the 4-slot, 27-column outer product: pays up to ~250 rows
         return closed_form.apply(EULER_TO_MATRIX, angles, convention=convention)
-    # (with a graph to record, through the quaternion from 769 rows: forward+backward 0.84x the time at 1,000)
+    # (with a graph to record, through the quaternion from 769 rows: forward+backward 0.77x the time at 1,000)
     if is_small(angles, 3, share=0.1875 if closed_form.records_graph((angles,)) else 0.25, gpu_share=0.25):
         return euler_to_matrix_small(angles, convention)
     # from 1,025 rows: the 27-column outer product costs more memory passes than the quaternion

@@ -379,8 +379,8 @@ def quat_slerp_unchecked(q0: Tensor, q1: Tensor, t: Tensor) -> Tensor:
     if torch.compiler.is_compiling():  # (one fused loop, and autograd of it)
         return _slerp_columns(q0, q1, t)
     # with a gradient to record, the columns' closed form wins above 512 rows (forward and backward
-    # 0.87x the rows' time at 1,000); without one, from about 2,000 (0.73x at 4,096)
-    if _slerp_small(q0, q1, t, 0.125) or (_slerp_small(q0, q1, t, 1.0) and not closed_form.records_graph((q0, q1, t))):
+    # 0.87x the rows' time at 1,000); without one, above 2,048 (0.87x at 3,072, 0.79x at 4,096)
+    if _slerp_small(q0, q1, t, 0.125) or (_slerp_small(q0, q1, t, 0.5) and not closed_form.records_graph((q0, q1, t))):
         return _slerp_rows(q0, q1, t.unsqueeze(-1))
     return closed_form.apply(_SLERP_COLUMNWISE, q0, q1, t)
 
@@ -393,8 +393,8 @@ def quat_slerp(q0: Tensor, q1: Tensor, t: Union[float, Tensor]) -> Tensor:
     the chord ``|q0 - q1|`` of the normalised inputs (accurate near 0 and pi), and where its
     square is below ``sqrt(eps)`` the weights are their Taylor series to fourth order in the
     angle, so gradients, and second derivatives, are finite and exact at and near ``q0 == q1``.
-    Batches of a few rows go row by row (few dispatches); larger ones column by column, with a
-    closed-form backward pass (above 512 rows with a gradient to record, else above 4,096).
+    Batches up to 512 rows (2,048 without a gradient to record) go row by row, in few dispatches;
+    larger ones column by column, with a closed-form backward pass.
 
     Args:
         q0: start quaternions; other norms than 1 are normalised first (zero gives NaN).

@@ -243,9 +243,12 @@ def _skew_over_sums(Y: Tensor, S: Tensor) -> Tensor:
     # rank <= 1: any finite value. Relative to the largest singular value: the projection is
     # scale-invariant, and an absolute eps shrank every gradient of a matrix whose singular values
     # are all below it (1e-8 in float32 already) by s / eps
-    # (at least the smallest normal number: a zero matrix's floor would be 0, and 0 / 0 NaN)
-    tiny = (S.abs().amax(-1, keepdim=True) * torch.finfo(S.dtype).eps).clamp_min(torch.finfo(S.dtype).tiny).unsqueeze(-1)
-    denom = torch.where(denom.abs() < tiny, tiny, denom)
+    # (at least the smallest normal number; for a zero matrix 1, the floor of a unit-scale matrix:
+    # 0 / 0 was NaN, and a floor of the smallest normal number overflowed to inf for gradients
+    # of order 1, at random)
+    scale = S.abs().amax(-1, keepdim=True)
+    floor = torch.where(scale > 0, (scale * torch.finfo(S.dtype).eps).clamp_min(torch.finfo(S.dtype).tiny), 1.0).unsqueeze(-1)
+    denom = torch.where(denom.abs() < floor, floor, denom)
     return (Y - Y.mT) / denom
 
 
