@@ -125,7 +125,7 @@ def test_planar_columns_and_rows_round_trip_exactly(monkeypatch):
 def test_planes_written_in_place_give_the_same_numbers(name, monkeypatch):
     # Where nothing records a graph (a closed form's forward and backward, values) the last passes
     # write into one plane_buffer that rows() transposes without a stack: the same numbers as stacking
-    from torchquat import _euler_rotations, axis_angle, distance, matrix, quaternion, rot6d
+    from torchquat import _euler_rotations, axis_angle, distance, matrix, quaternion, rot6d, slerp
     fn, generic, singular = ALL[name]
     monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 0)
     monkeypatch.setattr(tqmath, "PLANAR_ROWS", 0)
@@ -142,7 +142,7 @@ def test_planes_written_in_place_give_the_same_numbers(name, monkeypatch):
         return results
 
     written = run()
-    for module in (axis_angle, distance, _euler_rotations, matrix, quaternion, rot6d):
+    for module in (axis_angle, distance, _euler_rotations, matrix, quaternion, rot6d, slerp):
         monkeypatch.setattr(module, "plane_buffer", lambda *args, **kwargs: None)
     for a, b in zip(written, run()):
         torch.testing.assert_close(a, b, rtol=0, atol=0, equal_nan=True)

@@ -13,10 +13,11 @@ from .euler import euler_gimbal_lock, euler_to_matrix, euler_to_quat, matrix_to_
 from .matrix import matrix_to_quat, quat_to_matrix
 from .quaternion import (
     quat_conjugate, quat_from_jpl, quat_identity, quat_inverse, quat_multiply, quat_normalize, quat_rotate,
-    quat_slerp, quat_standardize, quat_to_jpl, quat_wxyz_to_xyzw, quat_xyzw_to_wxyz, random_quat,
+    quat_standardize, quat_to_jpl, quat_wxyz_to_xyzw, quat_xyzw_to_wxyz, random_quat,
 )
 from .registry import REPRESENTATIONS, convert
 from .rot6d import matrix_to_rot6d, rot6d_to_matrix, rot9d_to_matrix
+from .slerp import quat_slerp
 
 from . import nn  # noqa: E402  (torchquat.nn: layers, heads, losses)
 
