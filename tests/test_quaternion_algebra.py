@@ -202,15 +202,17 @@ def test_slerp_second_derivatives_are_continuous_at_and_near_equal_inputs(slerp_
         assert (torch.func.hessian(f)(e + d * u) - at_equal).abs().max() < 10 * d
 
 
-@pytest.mark.parametrize("layout", [10**12, 0], ids=["strided", "planar"])
+@pytest.mark.parametrize("layout", [None, 10**12, 0], ids=["rows", "strided", "planar"])
 def test_slerp_closed_form_backward_matches_autograd_of_its_forward(layout, monkeypatch):
-    # Large batches train through the columns' closed-form backward: the plain forward's numbers
+    # Both paths train through a closed-form backward (rows and columns): the plain forward's numbers
     # bit for bit, and autograd's gradients of it for q0, q1 and t, at generic inputs, inside and
     # just outside the series' band, near the antipode, across the sign flip, and broadcast
     from torchquat import slerp
 
-    monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 0)
-    monkeypatch.setattr(tqmath, "PLANAR_ROWS", layout)
+    if layout is not None:  # the columns
+        monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 0)
+        monkeypatch.setattr(tqmath, "PLANAR_ROWS", layout)
+    plain_forward = slerp._slerp_rows if layout is None else slerp._slerp_columns
     g = torch.Generator().manual_seed(11)
     q0 = torch.randn(48, 4, dtype=F64, generator=g)
     turn = tq.axis_angle_to_quat(torch.randn(48, 3, dtype=F64, generator=g))
@@ -225,7 +227,7 @@ def test_slerp_closed_form_backward_matches_autograd_of_its_forward(layout, monk
         assert type(out.grad_fn).__name__ == "_ClosedFormBackward"
         got = torch.autograd.grad(out, leaves, weights)
         plain_leaves = [x.clone().requires_grad_() for x in inputs]
-        plain = slerp._slerp_columns(*plain_leaves)
+        plain = plain_forward(*plain_leaves)
         assert torch.equal(out, plain)
         for a, b in zip(got, torch.autograd.grad(plain, plain_leaves, weights)):
             assert a.shape == b.shape and ((a - b).abs() / (1.0 + b.abs())).max() < 1e-12

@@ -184,7 +184,8 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
                 with _set_stance("eager_on_recompile"):
                     return compiled(*tensors)
         if (blocked_row_dims is not None
-                and any(t.numel() >= _BLOCKED_FROM for t in tensors)
+                and (tensors[0].numel() >= _BLOCKED_FROM or tensors[-1].numel() >= _BLOCKED_FROM
+                     or (len(tensors) > 2 and any(t.numel() >= _BLOCKED_FROM for t in tensors[1:-1])))
                 and not torch.compiler.is_compiling() and not torch._C._are_functorch_transforms_active()):
             out = _run_blocked(fn, tensors, blocked_row_dims, static)
             if out is not None:

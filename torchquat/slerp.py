@@ -1,5 +1,5 @@
-"""Spherical linear interpolation (Shoemake 1985): row by row for a few rows, column by column
-with a closed-form backward pass for many."""
+"""Spherical linear interpolation (Shoemake 1985): row by row for a few rows, column by column for
+many, each with a closed-form backward pass."""
 
 import numbers
 from typing import Union
@@ -13,7 +13,6 @@ from ._dispatch import kernel
 from ._math import constant, is_small, sum_of_products, sum_of_squares
 from ._planes import columns, plane_buffer, rows, slot
 from ._validation import check_broadcast, prepare_pair, restore
-from .quaternion import normalized
 
 __all__ = ["quat_slerp"]
 _PLANAR_SHARE = 0.25  # contiguous columns from 8,192 rows, as the product's (not measured for slerp alone)
@@ -36,13 +35,17 @@ def _arc_tie(x: Tensor, sign: float) -> Tensor:
     return constant("arc_tie_minus" if sign < 0 else "arc_tie_plus", sign * 8.0 * torch.finfo(x.dtype).eps, x)
 
 
-def _slerp_rows(q0: Tensor, q1: Tensor, t: Tensor) -> Tensor:
-    """Small batches, row by row (few dispatches); ``t`` shaped ``(..., 1)``."""
+def _slerp_rows_parts(q0: Tensor, q1: Tensor, t: Tensor):
+    """Small batches, row by row (few dispatches); ``t`` of the batch shape. Returns the output and
+    what the closed-form backward needs."""
     # (constants as tensors: a Python number is wrapped into a tensor on every call, 1 us each)
     one = constant("one", 1.0, q0)
-    q0, q1 = normalized(q0), normalized(q1)  # (a zero quaternion gives NaN, as everywhere, not a plausible rotation)
-    q1 = q1 * torch.where((q0 * q1).sum(-1, keepdim=True) < _arc_tie(q0, -1.0), constant("minus_one", -1.0, q0), one)
-    difference = q0 - q1
+    # (as normalized(): a zero quaternion gives NaN, as everywhere, not a plausible rotation)
+    scale0, scale1 = torch.rsqrt((q0 * q0).sum(-1, keepdim=True)), torch.rsqrt((q1 * q1).sum(-1, keepdim=True))
+    p, q = q0 * scale0, q1 * scale1
+    sign = torch.where((p * q).sum(-1, keepdim=True) < _arc_tie(q0, -1.0), constant("minus_one", -1.0, q0), one)
+    q = q * sign
+    difference = p - q
     square = (difference * difference).sum(-1, keepdim=True)
     # Below |q0 - q1|^2 = sqrt(eps) the series: autograd's second derivatives of the closed form
     # lose eps / angle^2 relative, and the series' next term is below eps
@@ -50,12 +53,45 @@ def _slerp_rows(q0: Tensor, q1: Tensor, t: Tensor) -> Tensor:
     # (the square root of 1 where the chord is that short: smooth to any order at q0 = q1, where a
     # norm's second derivative is NaN; |q0 + q1| >= sqrt(2) after the flip)
     chord = torch.sqrt(torch.where(small, one, square))
-    angle = torch.where(small, one, constant("two", 2.0, q0) * torch.atan2(chord, torch.linalg.vector_norm(q0 + q1, dim=-1, keepdim=True)))
+    angle = torch.where(small, one, constant("two", 2.0, q0) * torch.atan2(chord, torch.linalg.vector_norm(p + q, dim=-1, keepdim=True)))
+    t = t.unsqueeze(-1)
     times = torch.cat((one - t, t), dim=-1)  # both weights, one sine
     # a^2 = c^2 + c^4 / 12 + O(c^6) for the chord c = |q0 - q1| = 2 sin(a / 2)
-    series = _slerp_series(times, torch.addcmul(square, square, square, value=1.0 / 12.0))
-    weights = torch.where(small, series, torch.sin(times * angle) / torch.sin(angle))
-    return torch.addcmul(weights[..., :1] * q0, weights[..., 1:], q1)
+    angle2 = torch.addcmul(square, square, square, value=1.0 / 12.0)
+    sine = torch.sin(angle)
+    weights = torch.where(small, _slerp_series(times, angle2), torch.sin(times * angle) / sine)
+    out = torch.addcmul(weights[..., :1] * p, weights[..., 1:], q)
+    return out, (p, q, difference, scale0, scale1, sign, square, small, angle, sine, angle2, times, weights)
+
+
+def _slerp_rows(q0: Tensor, q1: Tensor, t: Tensor) -> Tensor:
+    return _slerp_rows_parts(q0, q1, t)[0]
+
+
+def _slerp_rows_backward(grad: Tensor, inputs, saved):
+    # The columns' closed form (below) for the pair (p, q) at once: with G = (<g, p>, <g, q>) and
+    # W = G . dw/dS, the gradients are scale_k (w_k g +- 2 W (p - q) - (w_k G_k + W S) x_k) for
+    # x = (p, q), and G . (-dw0/ds0, dw1/ds1) for t (one node in place of autograd's 25)
+    p, q, difference, scale0, scale1, sign, square, small, angle, sine, angle2, times, weights = saved
+    scale1 = scale1 * sign  # (q's scale, signed by the short arc)
+    if p.shape != q.shape:  # (broadcast batch shapes)
+        p, q, scale0, scale1 = torch.broadcast_tensors(p, q, scale0, scale1)
+        scale0, scale1 = scale0[..., :1], scale1[..., :1]
+    pair = torch.stack((p, q), dim=-2)  # (..., 2, 4)
+    g_pair = (pair * grad.unsqueeze(-2)).sum(-1)
+    d_square, d_s = _slerp_weight_derivatives(times, square, small, angle, sine, torch.cos(angle), angle2, weights)
+    w = (g_pair * d_square).sum(-1, keepdim=True)
+    along = torch.addcmul(w * square, weights, g_pair)
+    signs = constant("slerp_pair_signs", (-1.0, 1.0), grad)
+    twice = w * (signs * -2.0)  # (2 W, -2 W)
+    scales = torch.cat((scale0, scale1), dim=-1).unsqueeze(-1)
+    grads = scales * torch.addcmul(torch.addcmul(weights.unsqueeze(-1) * grad.unsqueeze(-2), twice.unsqueeze(-1),
+                                                 difference.unsqueeze(-2)), pair, along.unsqueeze(-1), value=-1.0)
+    g_q0, g_q1 = grads.unbind(-2)
+    return g_q0, g_q1, (g_pair * d_s * signs).sum(-1)
+
+
+_SLERP_ROWS = Rule(_slerp_rows, _slerp_rows_parts, _slerp_rows_backward)
 
 
 def _slerp_columns_parts(q0: Tensor, q1: Tensor, t: Tensor):
@@ -153,10 +189,11 @@ def quat_slerp_unchecked(q0: Tensor, q1: Tensor, t: Tensor) -> Tensor:
     """Unchecked :func:`quat_slerp` of ``(..., 4)`` inputs with ``t`` of (broadcasting) batch shape."""
     if torch.compiler.is_compiling():  # (one fused loop, and autograd of it)
         return _slerp_columns(q0, q1, t)
-    # with a gradient to record, the columns' closed form wins above 512 rows (forward and backward
-    # 0.87x the rows' time at 1,000); without one, above 2,048 (0.87x at 3,072, 0.79x at 4,096)
-    if _slerp_small(q0, q1, t, 0.125) or (_slerp_small(q0, q1, t, 0.5) and not closed_form.records_graph((q0, q1, t))):
-        return _slerp_rows(q0, q1, t.unsqueeze(-1))
+    # both paths have a closed-form backward: with a gradient to record the columns' wins above
+    # 1,024 rows (forward and backward 0.81x the rows' time at 2,048); without one, above 2,048
+    # (forward 0.87x at 3,072, 0.79x at 4,096)
+    if _slerp_small(q0, q1, t, 0.25) or (_slerp_small(q0, q1, t, 0.5) and not closed_form.records_graph((q0, q1, t))):
+        return closed_form.apply(_SLERP_ROWS, q0, q1, t)
     return closed_form.apply(_SLERP_COLUMNWISE, q0, q1, t)
 
 
@@ -168,8 +205,8 @@ def quat_slerp(q0: Tensor, q1: Tensor, t: Union[float, Tensor]) -> Tensor:
     the chord ``|q0 - q1|`` of the normalised inputs (accurate near 0 and pi), and where its
     square is below ``sqrt(eps)`` the weights are their Taylor series to fourth order in the
     angle, so gradients, and second derivatives, are finite and exact at and near ``q0 == q1``.
-    Batches up to 512 rows (2,048 without a gradient to record) go row by row, in few dispatches;
-    larger ones column by column, with a closed-form backward pass.
+    Batches up to 1,024 rows (2,048 without a gradient to record) go row by row, in few dispatches;
+    larger ones column by column; both with a closed-form backward pass.
 
     Args:
         q0: start quaternions; other norms than 1 are normalised first (zero gives NaN).
