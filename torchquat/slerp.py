@@ -71,7 +71,7 @@ def _slerp_rows(q0: Tensor, q1: Tensor, t: Tensor) -> Tensor:
 def _slerp_rows_backward(grad: Tensor, inputs, saved):
     # The columns' closed form (below) for the pair (p, q) at once: with G = (<g, p>, <g, q>) and
     # W = G . dw/dS, the gradients are scale_k (w_k g +- 2 W (p - q) - (w_k G_k + W S) x_k) for
-    # x = (p, q), and G . (-dw0/ds0, dw1/ds1) for t (one node in place of autograd's 25)
+    # x = (p, q), and G . (-dw0/ds0, dw1/ds1) for t (one node in place of autograd's 38)
     p, q, difference, scale0, scale1, sign, square, small, angle, sine, angle2, times, weights = saved
     scale1 = scale1 * sign  # (q's scale, signed by the short arc)
     if p.shape != q.shape:  # (broadcast batch shapes)
