@@ -80,22 +80,19 @@ class _ClosedForm(torch.autograd.Function):
         tensors = ctx.saved_tensors
         inputs, saved = tensors[:ctx.n_inputs], tensors[ctx.n_inputs:]
         wanted = ctx.needs_input_grad[2:]
-        if torch.is_grad_enabled():  # a graph of the gradient was asked for: differentiate the plain forward
+        create_graph = torch.is_grad_enabled()
+        if create_graph or _legacy_batched(grad):
+            # A graph of the gradient was asked for, or the gradient is batched by autograd's
+            # is_grads_batched (jacobian(vectorize=True)), whose legacy vmap has no batching rule
+            # for the closed forms' out= writes and broadcasts: differentiate the plain forward,
             # of views of the inputs: the partial derivatives, connected to the inputs' graphs. (Of
             # the inputs themselves, an input computed from another, or the same tensor twice,
             # would add the path through the other to its own derivative.)
-            inputs = [x.view_as(x) for x in inputs]
-            output = ctx.rule.plain(*inputs, **ctx.options)
-            targets = [x for x, w in zip(inputs, wanted) if w]
-            found = iter(torch.autograd.grad(output, targets, grad, create_graph=True, allow_unused=True))
-            return (None, None, *(next(found) if w else None for w in wanted))
-        if _legacy_batched(grad):  # autograd's is_grads_batched (jacobian(vectorize=True)): its
-            # legacy vmap has no batching rule for the closed forms' out= writes and broadcasts,
-            # where autograd's own backward formulas have them: differentiate the plain forward
             with torch.enable_grad():
-                inputs = [x.detach().requires_grad_(w) for x, w in zip(inputs, wanted)]
+                inputs = [x.view_as(x) for x in inputs]
                 output = ctx.rule.plain(*inputs, **ctx.options)
-                found = iter(torch.autograd.grad(output, [x for x, w in zip(inputs, wanted) if w], grad, allow_unused=True))
+                targets = [x for x, w in zip(inputs, wanted) if w]
+                found = iter(torch.autograd.grad(output, targets, grad, create_graph=create_graph, allow_unused=True))
             return (None, None, *(next(found) if w else None for w in wanted))
         grads = ctx.rule.backward(grad, inputs, saved, **ctx.options)
         result = [None, None]
