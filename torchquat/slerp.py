@@ -75,8 +75,7 @@ def _slerp_rows_backward(grad: Tensor, inputs, saved):
     p, q, difference, scale0, scale1, sign, square, small, angle, sine, angle2, times, weights = saved
     scale1 = scale1 * sign  # (q's scale, signed by the short arc)
     if p.shape != q.shape:  # (broadcast batch shapes)
-        p, q, scale0, scale1 = torch.broadcast_tensors(p, q, scale0, scale1)
-        scale0, scale1 = scale0[..., :1], scale1[..., :1]
+        (p, q), (scale0, scale1) = torch.broadcast_tensors(p, q), torch.broadcast_tensors(scale0, scale1)
     pair = torch.stack((p, q), dim=-2)  # (..., 2, 4)
     g_pair = (pair * grad.unsqueeze(-2)).sum(-1)
     d_square, d_s = _slerp_weight_derivatives(times, square, small, angle, sine, torch.cos(angle), angle2, weights)
