@@ -149,3 +149,36 @@ def test_compiled_exact_half_turns_are_plus_pi_as_eager(convention, compiled):
             angles = fn(x.repeat((50,) + (1,) * (x.dim() - 1)), convention)[:len(x)]
             assert not (angles[:, [0, 2]] == -torch.pi).any()
             torch.testing.assert_close(angles, expected, rtol=0, atol=1e-6 if dtype == torch.float32 else 1e-12)
+
+
+def test_compiled_graphs_take_only_the_input_tensors_and_their_sizes(compiled, monkeypatch):
+    # Dynamo turns every float a trace reads from a module-level table (or a float static option,
+    # an eps) into a graph input that each call boxes in a tensor: 0.6 ms of host time for
+    # matrix -> quat on a GPU. Read through _math.literal, they are literals of the graph.
+    import torchquat._dispatch as dispatch
+    import torchquat._math as tqmath
+
+    if not tqmath.literals_trace():
+        pytest.skip(f"this torch's dynamo ({torch.__version__}) cannot trace id() of a tuple: literals stay inputs")
+    inputs_of = {}
+
+    def graph_inputs(gm, example_inputs):
+        inputs_of.setdefault(current, []).extend(
+            node.name for node in gm.graph.nodes
+            if node.op == "placeholder" and not node.name.startswith("l_tensors_")
+            and not (node.name[0] == "s" and node.name[1:].isdigit()))  # (a size: dynamic=True)
+        return gm.forward
+
+    monkeypatch.setattr(dispatch, "_backend", graph_inputs)
+    monkeypatch.setattr(dispatch, "_compiled", {})
+    torch._dynamo.reset()
+    names = sorted(set(KERNELS) | {"matrix_to_euler[ZYX]", "quat_to_euler[xyz]", "euler_to_quat[xzx]",
+                                   "matrix_to_axis_angle", "axis_angle_to_matrix", "euler_to_matrix[zxz]"})
+    for current in names:
+        fn, generic, _ = ALL[current]
+        leaves = tuple(x.detach().clone().requires_grad_() for x in generic())
+        torch.autograd.grad(fn(*leaves).sum(), leaves)
+        with torch.no_grad():
+            fn(*(x.detach() for x in leaves))
+    assert set(inputs_of) == set(names)  # (each was compiled)
+    assert {name: inputs for name, inputs in inputs_of.items() if inputs} == {}

@@ -72,10 +72,14 @@ def _compiled_for(fn: Callable, static: Tuple, context: Tuple = ()) -> Callable:
     key = (fn, static, context)
     compiled = _compiled.get(key)
     if compiled is None:
-        options = dict(static)
+        options, numbers = dict(static), ()
+        if _math.literals_trace():  # (once: it also switches the tables' literals on; see _math.literal)
+            # a float option (an eps) is then a literal of the graph, not an input boxed in a tensor every call
+            options = {name: value for name, value in static if type(value) is not float}
+            numbers = _math.register_literal(tuple((name, value) for name, value in static if type(value) is float))
 
         def bound(*tensors):
-            return fn(*tensors, **options)
+            return fn(*tensors, **options, **dict(_math.literal(numbers)))
 
         # not functools.partial: torch.compile wraps those in one shared frame
         # Inductor's CPU tiling heuristic drops to scalar code (std::atan2 per element, 10-25x

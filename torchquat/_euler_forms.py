@@ -19,7 +19,7 @@ import torch
 from torch import Tensor
 
 from ._closed_form import Rule
-from ._math import bilinear, bilinear_terms, constant, safe_sqrt, sparse_columns, zero_to_inf
+from ._math import bilinear, bilinear_terms, constant, literal, safe_sqrt, sparse_columns, zero_to_inf
 from ._planes import columns, combinations, plane_buffer, rows, slot
 from .conventions import EULER_CONVENTIONS, EulerConvention
 from .matrix import _SHEPPERD, _SHEPPERD_OFFSET, _SHEPPERD_ROWS
@@ -125,6 +125,7 @@ def forms_tables(name: str):
 
 
 PAIRS = tuple((i, j) for i in range(4) for j in range(i, 4))  # the 10 distinct products u v
+_PI_TWO_PI = (math.pi, 2.0 * math.pi)  # (through literal: constants of a compiled loop)
 
 
 ANGLE_FORMS = (0, 1, 2, 3, 4, 5, 12)
@@ -238,8 +239,9 @@ def angles_parts(forms, conv: EulerConvention, eps: float, abcd2, out: Optional[
     # every path (t3 - pi is exact there, and -2 pi / 2 pi exactly -1: no rounding decides). A t3
     # an ulp or two above -pi rounds t3 - pi to -2 pi and comes out as pi plus those ulps: the
     # clamp keeps the range ([-pi, pi] in SPEC; pi is within rounding of the exact -pi + ulps)
-    turns = torch.ceil((t3 - math.pi) / (2.0 * math.pi))
-    t3 = torch.clamp_max(torch.sub(t3, turns, alpha=2.0 * math.pi), math.pi, out=final(0) if conv.intrinsic else None)
+    pi, two_pi = literal(_PI_TWO_PI)
+    turns = torch.ceil((t3 - pi) / two_pi)
+    t3 = torch.clamp_max(torch.sub(t3, turns, alpha=two_pi), pi, out=final(0) if conv.intrinsic else None)
     if conv.intrinsic:
         angles = (t3, middle, t1)
     else:
@@ -361,7 +363,8 @@ QUAT_TO_EULER_PLANAR = Rule(quat_to_euler_planar, _quat_to_euler_planar_parts, _
 
 def _matrix_columnwise_forms(R: Tensor, convention: EulerConvention):
     """The forms from R's entries (eager CPU: one matmul; else one pass per term), and ``|abcd|^2``."""
-    _, table, offset, abcd2 = DENSE[convention.name]
+    _, table, offset, _ = DENSE[convention.name]  # (the tables: literals through columns())
+    abcd2 = literal(DENSE[convention.name])[3]
     return columns(R.flatten(-2), table, "euler_R_" + convention.name, offset, share=MATRIX_TO_EULER_PLANAR_SHARE), abcd2
 
 

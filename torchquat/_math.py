@@ -1,6 +1,7 @@
 """Small numerical helpers shared by the conversion modules."""
 
 import math
+import sys
 
 import torch
 from torch import Tensor
@@ -155,9 +156,101 @@ def constant(name: str, values, like: Tensor, dtype=None) -> Tensor:
     return table
 
 
+# Inside a torch.compile trace, dynamo turns every float it reads out of a module-level table
+# into an input of the graph (``specialize_float`` is off by default): boxed in a tensor on every
+# call (108 of them for matrix -> quat on a GPU, 0.6 ms of host time beside a 39 us kernel; 32 us
+# of 69 at one rotation on a CPU) and a variable, not a literal, in the fused loop. A table
+# reached through :func:`literal` is a compile-time constant instead.
+_LITERALS = {}
+
+
+def _reachable_tables():
+    """Every tuple, list and dict reachable from torchquat's module-level names, by ``id``."""
+    found = {}
+    pending = [value for name, module in list(sys.modules.items())
+               if name == "torchquat" or name.startswith("torchquat.") for value in vars(module).values()]
+    while pending:
+        value = pending.pop()
+        if isinstance(value, (tuple, list, dict)) and id(value) not in found:
+            found[id(value)] = value
+            pending.extend(value.values() if isinstance(value, dict) else value)
+    return found
+
+
+def _assume_constant_result(fn):
+    decorate = getattr(torch.compiler, "assume_constant_result", None)  # (torch 2.2 and later)
+    return fn if decorate is None else decorate(fn)
+
+
+def _frozen(value):
+    """A copy of ``value`` in new tuples: dynamo tracks a list it has already met by identity
+    (and would give back the variable with its source), a new tuple it does not."""
+    if isinstance(value, (tuple, list)):
+        return tuple(_frozen(v) for v in value)
+    return value
+
+
+@_assume_constant_result
+def _literal_by_id(key: int):
+    """A copy of the table whose ``id`` is ``key``, made by dynamo's call at trace time (never
+    traced): a constant of the graph, with no source to guard or lift."""
+    if key not in _LITERALS:
+        _LITERALS.update(_reachable_tables())
+    return _frozen(_LITERALS[key]) if key in _LITERALS else None
+
+
+# Whether dynamo traces literal(): id() of a tuple traces in torch 2.13, not in 2.11. None until
+# the compiled kernels' dispatcher asks (literals_trace()); literal() is the identity until then.
+LITERALS_TRACE = None
+
+
+def literal(table):
+    """``table`` (a module-level tuple or list of numbers, or one inside a module-level
+    container, or one passed to :func:`register_literal`), read as a compile-time constant inside a
+    ``torch.compile`` trace: its numbers become literals of the fused loop rather than inputs
+    that every call boxes in tensors. Eager, or where dynamo cannot trace it: ``table`` itself."""
+    if LITERALS_TRACE and torch.compiler.is_compiling() and isinstance(table, (tuple, list)):
+        found = _literal_by_id(id(table))
+        return table if found is None else found
+    return table
+
+
+def register_literal(value):
+    """Make ``value`` (a tuple that lives as long as the code that reads it, such as a
+    compiled kernel's static options) one that :func:`literal` finds; returns it."""
+    _LITERALS[id(value)] = value
+    return value
+
+
+def literals_trace() -> bool:
+    """Whether :func:`literal` works inside this torch's traces, found once by tracing a probe
+    (with dynamo's plain "eager" backend: no code is generated) and kept in ``LITERALS_TRACE``."""
+    global LITERALS_TRACE
+    if LITERALS_TRACE is None:
+        probe = register_literal((0.5, (2.0,)))
+        inputs = []
+
+        def graph_inputs(gm, example_inputs):
+            inputs.extend(node for node in gm.graph.nodes if node.op == "placeholder")
+            return gm.forward
+
+        def read_probe(x):
+            table = literal(probe)
+            return x * table[0] + table[1][0]
+
+        LITERALS_TRACE = True
+        try:
+            out = torch.compile(read_probe, backend=graph_inputs, fullgraph=True, dynamic=False)(torch.ones(2))
+            LITERALS_TRACE = out.tolist() == [2.5, 2.5] and len(inputs) == 1  # (x alone: no number lifted)
+        except Exception:
+            LITERALS_TRACE = False
+    return LITERALS_TRACE
+
+
 def sparse_columns(table, offset=None):
     """Each column of ``table`` (a matrix, or a vector: one column) as its non-zero
     ``(row, coefficient)`` terms and its offset, for :func:`combine`."""
+    table, offset = literal(table), literal(offset)
     if not isinstance(table[0], (list, tuple)):
         table = [[v] for v in table]
     return tuple((tuple((r, row[k]) for r, row in enumerate(table) if row[k] != 0), offset[k] if offset else 0.0)
@@ -190,7 +283,7 @@ def bilinear(a, b, terms, out=None):
     term, each a single pass. ``out``: optional planes (a ``torchquat._planes.plane_buffer``,
     returned filled; or a sequence of planes and ``None``) that each column's last pass writes into."""
     results = []
-    for c, ((i, j, k), *rest) in enumerate(terms):
+    for c, ((i, j, k), *rest) in enumerate(literal(terms)):
         target = None if out is None else out[c]
         if not rest:
             total = torch.mul(a[i], b[j], out=target) if k == 1 else torch.mul(a[i] * b[j], k, out=target)

@@ -27,7 +27,7 @@ from ._euler_forms import (COLUMNWISE, MATRIX_TO_EULER_COLUMNWISE, PAIRS, QUAT_T
 from ._euler_small import euler_angles, lock, matrix_layout, quat_layout
 from ._euler_rotations import (EULER_TO_MATRIX, EULER_TO_QUAT, EULER_TO_QUAT_COLUMNWISE, euler_to_matrix_small,
                                euler_to_quat_columnwise)
-from ._math import combine, constant, is_small
+from ._math import combine, constant, is_small, literal
 from ._planes import columns, planar
 from ._validation import prepare, restore
 from .conventions import EulerConvention, gimbal_eps, parse_convention
@@ -149,7 +149,7 @@ def _matrix_euler_small(R: Tensor) -> bool:
 
 def _quat_columnwise_forms(q: Tensor, convention: EulerConvention):
     """The forms :data:`~torchquat._euler_forms.ANGLE_FORMS` of ``q`` and ``|abcd|^2``, column by column."""
-    abcd_terms, pair_terms = COLUMNWISE[convention.name]
+    abcd_terms, pair_terms = literal(COLUMNWISE[convention.name])
     components = columns(q)  # once: under compile each unbind's backward is an (N, 4) buffer of its own
     abcd = [combine(components, terms) for terms in abcd_terms]
     products = [abcd[u] * abcd[v] for u, v in PAIRS]
