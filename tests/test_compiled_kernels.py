@@ -182,3 +182,33 @@ def test_compiled_graphs_take_only_the_input_tensors_and_their_sizes(compiled, m
             fn(*(x.detach() for x in leaves))
     assert set(inputs_of) == set(names)  # (each was compiled)
     assert {name: inputs for name, inputs in inputs_of.items() if inputs} == {}
+
+
+def test_small_cpu_batches_run_eagerly_where_eager_is_faster(monkeypatch):
+    # A compiled call costs about 30 us before any work: below each kernel's measured crossover
+    # (compiled_from_rows) a CPU batch runs the eager kernel instead.
+    import torchquat._dispatch as dispatch
+
+    monkeypatch.setattr(dispatch, "_backend", "eager")
+    monkeypatch.setattr(dispatch, "_compiled", {})
+    torch._dynamo.reset()
+    g = torch.Generator().manual_seed(0)
+    q = tq.random_quat(2048, generator=g, dtype=torch.float64)
+    v = torch.randn(1024, 3, generator=g, dtype=torch.float64)
+    compiled_kernels = lambda: {key[0].__name__ for key in dispatch._compiled}
+    tq.use_compiled_kernels(True)
+    try:
+        small = tq.quat_to_matrix(q[:2047])
+        assert compiled_kernels() == set()
+        large = tq.quat_to_matrix(q)
+        assert compiled_kernels() == {"quat_to_matrix_unchecked"}
+        # the largest input counts: one rotation applied to many vectors is a large batch
+        tq.quat_rotate(q[:1], v)
+        assert "rotate_unchecked" in compiled_kernels()
+        # a kernel that the compiled path runs faster at every size compiles for one rotation
+        tq.quat_to_euler(q[:1], "ZYX")
+        assert "quat_to_euler_unchecked" in compiled_kernels()
+    finally:
+        tq.use_compiled_kernels(False)
+    torch.testing.assert_close(small, tq.quat_to_matrix(q[:2047]), rtol=0, atol=0)  # (eager: bit for bit)
+    torch.testing.assert_close(large, tq.quat_to_matrix(q), rtol=0, atol=1e-15)

@@ -146,7 +146,23 @@ def _run_blocked(fn: Callable, tensors: Tuple[Tensor, ...], row_dims: Tuple[int,
     return out.view(batch + out.shape[1:])
 
 
-def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[int, ...]] = None) -> Callable:
+# Multiplies every kernel's ``compiled_from_rows`` (tests set 0 to compile every batch size).
+COMPILED_FROM_SCALE = 1
+
+
+def _small_cpu_batch(tensors: Tuple[Tensor, ...], row_dims: Tuple[int, ...], rows: int) -> bool:
+    """Whether the inputs are CPU tensors of fewer than ``rows * COMPILED_FROM_SCALE`` rows each."""
+    if not tensors[0].is_cpu:
+        return False
+    bound = rows * COMPILED_FROM_SCALE
+    for t, r in zip(tensors, row_dims):
+        if t.numel() >= bound and t.shape[:t.dim() - r].numel() >= bound:  # (numel first: 0.1 us)
+            return False
+    return True
+
+
+def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[int, ...]] = None,
+           compiled_from_rows: int = 0) -> Callable:
     """Mark an unchecked kernel ``fn(*tensors, **static_options)`` as compilable.
 
     Static options (an Euler convention, an ``eps``) are bound before compiling, so each
@@ -155,9 +171,14 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
     ``blocked_row_dims`` (each tensor's number of row dimensions: 1 for quaternions, 2 for
     matrices) marks a kernel whose large eager CPU batches run block by block when nothing is
     differentiated (see ``_math.BLOCK_ROWS``). Used as ``@kernel`` or ``@kernel(blocked_row_dims=...)``.
+
+    ``compiled_from_rows`` (with ``blocked_row_dims``): with the compiled kernels on, CPU batches
+    of fewer rows run eagerly, where a compiled call's fixed cost (dynamo's guards and wrappers,
+    about 30 us) is more than eager code takes: the crossover measured on a CPU, forward and with
+    the backward (``docs/bench_profile.md``, "Session 14"). Off the CPU every batch is compiled.
     """
     if fn is None:
-        return functools.partial(kernel, blocked_row_dims=blocked_row_dims)
+        return functools.partial(kernel, blocked_row_dims=blocked_row_dims, compiled_from_rows=compiled_from_rows)
 
     @functools.wraps(fn)
     def dispatch(*tensors, **static):
@@ -166,8 +187,8 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
             # are computed in the input's precision (float32 at least) and returned in it.
             with torch.autocast(device, enabled=False):
                 return dispatch(*tensors, **static)
-        if (_enabled and not torch.compiler.is_compiling()
-                and not torch._C._are_functorch_transforms_active()):
+        if (_enabled and not (compiled_from_rows and _small_cpu_batch(tensors, blocked_row_dims, compiled_from_rows))
+                and not torch.compiler.is_compiling() and not torch._C._are_functorch_transforms_active()):
             # Dynamo guards on grad and inference mode and the dtype, and keeps 8 graphs per
             # function: a training loop's train / eval / inference calls, each with a last
             # short batch or a sliced input, would run past them. So each of those gets a

@@ -78,7 +78,7 @@ def _axis_angle_to_quat_with_jacobian(v: Tensor):
 _AXIS_ANGLE_TO_QUAT = jacobian_rule(_axis_angle_to_quat_small, _axis_angle_to_quat_with_jacobian, _axis_angle_to_quat_values)
 
 
-@kernel(blocked_row_dims=(1,))
+@kernel(blocked_row_dims=(1,), compiled_from_rows=1_024)
 def axis_angle_to_quat_unchecked(v: Tensor) -> Tensor:
     # Up to 1,024 rows one closed-form node on the table path; above, its broadcast (..., 3, 4)
     # products cost more per row, and the columns with their own closed form are 1.4-1.9x faster
@@ -168,7 +168,7 @@ _COLUMNWISE_SHARE = 8.0
 _QUAT_TO_AXIS_ANGLE = jacobian_rule(_quat_to_axis_angle_small, _quat_to_axis_angle_with_jacobian, _quat_to_axis_angle_values)
 
 
-@kernel(blocked_row_dims=(1,))
+@kernel(blocked_row_dims=(1,), compiled_from_rows=2_048)
 def quat_to_axis_angle_unchecked(q: Tensor) -> Tensor:
     if torch.compiler.is_compiling():
         return _quat_to_axis_angle_columnwise(q)
@@ -332,7 +332,7 @@ _AXIS_ANGLE_TO_MATRIX = jacobian_rule(_axis_angle_to_matrix_small, _axis_angle_t
                                       lambda v: _axis_angle_to_matrix_small(v, for_autograd=False))
 
 
-@kernel(blocked_row_dims=(1,))
+@kernel(blocked_row_dims=(1,), compiled_from_rows=512)
 def axis_angle_to_matrix_unchecked(v: Tensor) -> Tensor:
     # Through the quaternion, where Rodrigues' formula written out is about 50 eager operations:
     # a few rows in one closed-form node (the quaternion's series and its quadratic form, with

@@ -57,7 +57,7 @@ def _quat_distance_backward(grad: Tensor, inputs, saved):
 _QUAT_DISTANCE = Rule(_quat_distance_small, _quat_distance_parts, _quat_distance_backward)
 
 
-@kernel(blocked_row_dims=(1, 1))
+@kernel(blocked_row_dims=(1, 1), compiled_from_rows=512)
 def quat_geodesic_distance_unchecked(q1: Tensor, q2: Tensor) -> Tensor:
     # (the columns' forward wins from about 1,536 rows, 0.63x the time at 4,096, but squares
     # products of the inputs: their narrower norm range stays above 4,096 rows, on both modes)
@@ -177,7 +177,7 @@ def quat_geodesic_distance(q1: Tensor, q2: Tensor) -> Tensor:
     return restore(quat_geodesic_distance_unchecked(q1, q2), dtype)
 
 
-@kernel(blocked_row_dims=(2, 2))
+@kernel(blocked_row_dims=(2, 2), compiled_from_rows=1_024)
 def matrix_geodesic_distance_unchecked(R1: Tensor, R2: Tensor) -> Tensor:
     if torch.compiler.is_compiling():  # (the closed-form backward compiled: 31 ms against 32, not kept)
         return _matrix_distance_columnwise(R1, R2)

@@ -81,7 +81,7 @@ _QUAT_TO_MATRIX_PLANAR = Rule(_quat_to_matrix_planar, _quat_to_matrix_planar_par
                               _quat_to_matrix_planar)
 
 
-@kernel(blocked_row_dims=(1,))
+@kernel(blocked_row_dims=(1,), compiled_from_rows=2_048)
 def quat_to_matrix_unchecked(q: Tensor) -> Tensor:
     """Homogeneous form divided by ``|q|^2``: the rotation of ``q / |q|``, NaN for ``q = 0``."""
     if is_small(q, 4, gpu_share=4):
@@ -186,7 +186,7 @@ def _matrix_to_quat_with_jacobian(R: Tensor):
 _MATRIX_TO_QUAT = jacobian_rule(_matrix_to_quat_small, _matrix_to_quat_with_jacobian)
 
 
-@kernel(blocked_row_dims=(2,))
+@kernel(blocked_row_dims=(2,), compiled_from_rows=512)
 def matrix_to_quat_unchecked(R: Tensor) -> Tensor:
     """Shepperd's method (1978), branch-free, returning ``w >= 0``.
 

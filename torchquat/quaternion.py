@@ -76,7 +76,7 @@ _PRODUCT_COLUMNWISE = Rule(_product_columnwise, _product_columnwise_parts, _prod
                            _product_columnwise)
 
 
-@kernel(blocked_row_dims=(1, 1))
+@kernel(blocked_row_dims=(1, 1), compiled_from_rows=8_192)
 def hamilton_product(p: Tensor, q: Tensor) -> Tensor:
     """Unchecked Hamilton product of prepared tensors (used internally)."""
     if is_small(p, 4, gpu_share=4) and is_small(q, 4, gpu_share=4):
@@ -223,7 +223,7 @@ def quat_rotate(q: Tensor, v: Tensor) -> Tensor:
     return restore(rotate_unchecked(q, v), dtype)
 
 
-@kernel(blocked_row_dims=(1, 1))
+@kernel(blocked_row_dims=(1, 1), compiled_from_rows=1_024)
 def rotate_unchecked(q: Tensor, v: Tensor) -> Tensor:
     if torch.compiler.is_compiling() or planar(q, 4, _PLANAR_SHARE) or planar(v, 3, _PLANAR_SHARE):  # (one fused loop under compile)
         q, (a, b, c) = columns(q, share=_PLANAR_SHARE), columns(v, share=_PLANAR_SHARE)
