@@ -212,3 +212,36 @@ def test_small_cpu_batches_run_eagerly_where_eager_is_faster(monkeypatch):
         tq.use_compiled_kernels(False)
     torch.testing.assert_close(small, tq.quat_to_matrix(q[:2047]), rtol=0, atol=0)  # (eager: bit for bit)
     torch.testing.assert_close(large, tq.quat_to_matrix(q), rtol=0, atol=1e-15)
+
+
+def test_the_literal_index_holds_torchquats_tables_and_nothing_else(monkeypatch):
+    # the index of module-level containers keeps what it finds alive: never the builtins
+    # (an interactive session's `_`, the last value it displayed, can be a large tensor list)
+    import builtins
+
+    import torchquat._math as tqmath
+    from torchquat.matrix import _SHEPPERD
+
+    marker = [object()]
+    monkeypatch.setattr(builtins, "_", marker, raising=False)
+    index = tqmath._reachable_tables()
+    assert id(_SHEPPERD) in index and id(_SHEPPERD[0]) in index
+    assert id(marker) not in index and id(vars(builtins)) not in index
+
+
+def test_switching_the_literals_on_recompiles_no_users_compiled_code(monkeypatch):
+    # literal() reads the probe's answer without a guard on it: a user's own compiled region,
+    # traced before the first compiled kernel ran the probe, keeps its graph afterwards
+    import torchquat._math as tqmath
+    from torch._dynamo.testing import CompileCounter
+
+    monkeypatch.setattr(tqmath, "LITERALS_TRACE", None)
+    torch._dynamo.reset()
+    counter = CompileCounter()
+    user = torch.compile(lambda x: tq.quat_to_euler(x, "ZYX") * 2, fullgraph=True, backend=counter)
+    q = tq.random_quat(5000, generator=torch.Generator().manual_seed(2), dtype=torch.float64)  # (the column forms)
+    first = user(q)
+    if not tqmath.literals_trace():
+        pytest.skip(f"this torch's dynamo ({torch.__version__}) cannot trace id() of a tuple")
+    torch.testing.assert_close(user(q), first, rtol=0, atol=0)
+    assert counter.frame_count == 1

@@ -1,5 +1,6 @@
 """Small numerical helpers shared by the conversion modules."""
 
+import contextlib
 import math
 import sys
 
@@ -167,8 +168,9 @@ _LITERALS = {}
 def _reachable_tables():
     """Every tuple, list and dict reachable from torchquat's module-level names, by ``id``."""
     found = {}
-    pending = [value for name, module in list(sys.modules.items())
-               if name == "torchquat" or name.startswith("torchquat.") for value in vars(module).values()]
+    pending = [value for module_name, module in list(sys.modules.items())
+               if module_name == "torchquat" or module_name.startswith("torchquat.")
+               for name, value in vars(module).items() if not name.startswith("__")]  # (not __builtins__)
     while pending:
         value = pending.pop()
         if isinstance(value, (tuple, list, dict)) and id(value) not in found:
@@ -204,12 +206,20 @@ def _literal_by_id(key: int):
 LITERALS_TRACE = None
 
 
+@_assume_constant_result
+def _literals_on() -> bool:
+    """``LITERALS_TRACE``, read by a trace without a guard on it (a guard would recompile a user's
+    own compiled code once when the probe switches literals on)."""
+    return bool(LITERALS_TRACE)
+
+
 def literal(table):
     """``table`` (a module-level tuple or list of numbers, or one inside a module-level
     container, or one passed to :func:`register_literal`), read as a compile-time constant inside a
     ``torch.compile`` trace: its numbers become literals of the fused loop rather than inputs
-    that every call boxes in tensors. Eager, or where dynamo cannot trace it: ``table`` itself."""
-    if LITERALS_TRACE and torch.compiler.is_compiling() and isinstance(table, (tuple, list)):
+    that every call boxes in tensors. Eager, or where dynamo cannot trace it: ``table`` itself.
+    (Not on a table that is already a literal's: dynamo cannot take the id of a constant.)"""
+    if torch.compiler.is_compiling() and isinstance(table, (tuple, list)) and _literals_on():
         found = _literal_by_id(id(table))
         return table if found is None else found
     return table
@@ -223,8 +233,10 @@ def register_literal(value):
 
 
 def literals_trace() -> bool:
-    """Whether :func:`literal` works inside this torch's traces, found once by tracing a probe
-    (with dynamo's plain "eager" backend: no code is generated) and kept in ``LITERALS_TRACE``."""
+    """Whether :func:`literal` works inside this torch's traces, found by tracing a probe (with
+    dynamo's plain "eager" backend: no code is generated) and kept in ``LITERALS_TRACE``: True once
+    it works, False once dynamo refuses it; a probe that a user's setting stopped (dynamo disabled)
+    is tried again with the next compiled kernel."""
     global LITERALS_TRACE
     if LITERALS_TRACE is None:
         probe = register_literal((0.5, (2.0,)))
@@ -234,17 +246,21 @@ def literals_trace() -> bool:
             inputs.extend(node for node in gm.graph.nodes if node.op == "placeholder")
             return gm.forward
 
-        def read_probe(x):
-            table = literal(probe)
+        def read_probe(x):  # (literal()'s lookup itself: LITERALS_TRACE stays None meanwhile)
+            table = _literal_by_id(id(probe))
             return x * table[0] + table[1][0]
 
-        LITERALS_TRACE = True
+        stance = getattr(torch.compiler, "set_stance", None)  # (a user's "force_eager" would skip the trace)
         try:
-            out = torch.compile(read_probe, backend=graph_inputs, fullgraph=True, dynamic=False)(torch.ones(2))
-            LITERALS_TRACE = out.tolist() == [2.5, 2.5] and len(inputs) == 1  # (x alone: no number lifted)
-        except Exception:
-            LITERALS_TRACE = False
-    return LITERALS_TRACE
+            with stance("default") if stance is not None else contextlib.nullcontext():
+                out = torch.compile(read_probe, backend=graph_inputs, fullgraph=True, dynamic=False)(
+                    torch.ones(2, device="cpu"))
+            if out.tolist() == [2.5, 2.5] and len(inputs) == 1:  # (x alone: no number lifted)
+                LITERALS_TRACE = True
+        except Exception as error:
+            if "Unsupported" in type(error).__name__:  # (torch 2.11: id() of a tuple)
+                LITERALS_TRACE = False
+    return bool(LITERALS_TRACE)
 
 
 def sparse_columns(table, offset=None):
