@@ -153,7 +153,7 @@ def test_compiled_exact_half_turns_are_plus_pi_as_eager(convention, compiled):
 
 def test_compiled_graphs_take_only_the_input_tensors_and_their_sizes(compiled, monkeypatch):
     # Dynamo turns every float a trace reads from a module-level table (or a float static option,
-    # an eps) into a graph input that each call boxes in a tensor: 0.6 ms of host time for
+    # an eps) into a graph input that each call boxes in a tensor: 0.5-1 ms of host time for
     # matrix -> quat on a GPU. Read through _math.literal, they are literals of the graph.
     import torchquat._dispatch as dispatch
     import torchquat._math as tqmath
