@@ -84,23 +84,26 @@ def test_the_public_function_takes_the_closed_form_backward(name):
 
 
 _COLUMNS_WITH_A_GRAPH_ABOVE = {"axis_angle_to_quat": 768, "quat_to_axis_angle": 512}
+_VALUES_OF_THEIR_OWN = {"axis_angle_to_quat"}
 
 
 @pytest.mark.parametrize("rows", [1, 7, 300, 1000])  # 1000: above quat_to_axis_angle's closed form
 @pytest.mark.parametrize("name", sorted(CASES))
-def test_values_without_a_graph_equal_the_plain_forward_bit_for_bit(name, rows):
+def test_values_without_a_graph_equal_the_plain_forward(name, rows):
     # Nothing to differentiate: the rule's values path runs, without the substitutes that keep
     # autograd finite (the series branch takes those rows). Same numbers with or without a graph.
     plain, _, public, generic, singular = CASES[name]
     x = torch.cat([singular(), generic(3000, seed=7)])[:rows]
     expected = plain(x)
-    torch.testing.assert_close(public(x), expected, rtol=0, atol=0, equal_nan=True)
+    # (axis_angle_to_quat's values path has its own formula, no series: equal to rounding)
+    rtol = 2 * torch.finfo(F64).eps if name in _VALUES_OF_THEIR_OWN else 0
+    torch.testing.assert_close(public(x), expected, rtol=rtol, atol=0, equal_nan=True)
     # (with a graph to record, batches above these bounds take the columns' closed form, faster
     # forward and backward there: the same numbers to rounding)
     atol = 4 * torch.finfo(F64).eps if rows > _COLUMNS_WITH_A_GRAPH_ABOVE.get(name, rows) else 0
     torch.testing.assert_close(public(x.clone().requires_grad_()).detach(), expected, rtol=0, atol=atol, equal_nan=True)
     with torch.no_grad():
-        torch.testing.assert_close(public(x.clone().requires_grad_()), expected, rtol=0, atol=0, equal_nan=True)
+        torch.testing.assert_close(public(x.clone().requires_grad_()), expected, rtol=rtol, atol=0, equal_nan=True)
 
 
 @pytest.mark.parametrize("name", sorted(_COLUMNS_WITH_A_GRAPH_ABOVE))

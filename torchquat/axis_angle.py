@@ -52,8 +52,20 @@ def _axis_angle_to_quat_small(v: Tensor, for_autograd: bool = True) -> Tensor:
     return torch.cat((cos_half, v * sinc_half), dim=-1) * torch.copysign(constant("one", 1.0, v), cos_half)
 
 
+def _half_turn_quat(v: Tensor) -> Tensor:
+    """The quaternion of ``v`` up to sign, for values only: ``(cos x, h sin(x) / x)`` with ``h = v / 2``
+    and ``x = |h|`` at least the smallest normal number, where ``sin(x) / x`` is 1 (and at ``v = 0``
+    0 / 0 is avoided): no series and no substitutes, 8 operations in place of 13 (0.65x the time
+    at one rotation). Nothing differentiates it. (Not ``torch.sinc(x / pi)``: its argument's
+    rounding at large angles, 0.06 rad at 1e6 in float32, unpairs it from ``cos x``.)"""
+    half = v * constant("half", 0.5, v)
+    x = torch.linalg.vector_norm(half, dim=-1, keepdim=True).clamp_min(torch.finfo(v.dtype).tiny)
+    return torch.cat((torch.cos(x), half * (torch.sin(x) / x)), dim=-1)
+
+
 def _axis_angle_to_quat_values(v: Tensor) -> Tensor:
-    return _axis_angle_to_quat_small(v, for_autograd=False)
+    q = _half_turn_quat(v)
+    return q * torch.copysign(constant("one", 1.0, v), q.narrow(-1, 0, 1))  # w >= 0, as above
 
 
 # (..., 3, 4) Jacobian rows: d q / d v_i. Row i is s e_{i+1} plus v_i times (-s / 2, t v) with
@@ -329,7 +341,7 @@ def _axis_angle_to_matrix_with_jacobian(v: Tensor):
 
 
 _AXIS_ANGLE_TO_MATRIX = jacobian_rule(_axis_angle_to_matrix_small, _axis_angle_to_matrix_with_jacobian,
-                                      lambda v: _axis_angle_to_matrix_small(v, for_autograd=False))
+                                      lambda v: _rotation_form(_half_turn_quat(v)))  # (R is even in q)
 
 
 @kernel(blocked_row_dims=(1,), compiled_from_rows=512)
