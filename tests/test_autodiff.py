@@ -113,27 +113,74 @@ def test_rot9d_gradient_is_scale_invariant(dtype, scale):
     torch.testing.assert_close(gradient((scale * M).to(dtype)) * scale, expected, rtol=0, atol=tolerance * expected.abs().max())
 
 
-def test_rot9d_second_derivatives_raise_even_for_a_loss_linear_in_the_rotation():
-    # once_differentiable's marker raises only where the incoming gradient requires grad: a gradient
-    # penalty through a loss linear in R (the chordal form) was silently wrong, 100% off
+def _rot9d_hessian_by_differences(f, M, eps=1e-6):
+    """The Hessian of scalar ``f`` at ``M`` (3 x 3) from central differences of its first-order
+    gradient (the closed-form backward, checked against differences of R above)."""
+    def gradient(x):
+        x = x.clone().requires_grad_()
+        return torch.autograd.grad(f(x), x)[0].flatten()
+    steps = eps * torch.eye(9, dtype=M.dtype).view(9, 3, 3)
+    return torch.stack([(gradient(M + d) - gradient(M - d)) / (2 * eps) for d in steps])
+
+
+@pytest.mark.parametrize("at", ["generic", "rotation", "reflection"])
+def test_rot9d_second_derivatives_match_differences_of_the_gradient(at):
+    # Before, torch.func.hessian, jacrev(jacrev) and jacfwd(jacrev) returned 0 and
+    # autograd.functional.jvp returned 0 (the backward ran under no_grad); create_graph raised.
+    g = torch.Generator().manual_seed(8)
+    M = {"generic": torch.randn(3, 3, dtype=torch.float64, generator=g),
+         "rotation": 2.0 * tq.quat_to_matrix(tq.random_quat(1, generator=g, dtype=torch.float64))[0],  # s1 = s2 = s3
+         "reflection": torch.diag(torch.tensor([3.0, 2.0, -1.0], dtype=torch.float64))}[at]  # det < 0: s'3 < 0
+    W = torch.randn(3, 3, dtype=torch.float64, generator=g)
+    f = lambda x: (tq.rot9d_to_matrix(x) * W).sum() + tq.rot9d_to_matrix(x)[..., 0, 1].pow(2).sum()
+    expected = _rot9d_hessian_by_differences(f, M)
+    assert expected.abs().max() > 0.1  # (the check is not vacuous)
+    for H in (torch.func.hessian(f)(M), torch.func.jacrev(torch.func.jacrev(f))(M),
+              torch.autograd.functional.hessian(f, M), torch.autograd.functional.hessian(f, M, vectorize=True)):
+        torch.testing.assert_close(H.reshape(9, 9), expected, rtol=0, atol=1e-8)
+    x = M.clone().requires_grad_()
+    (grad,) = torch.autograd.grad(f(x), x, create_graph=True)
+    rows = torch.stack([torch.autograd.grad(grad.flatten()[i], x, retain_graph=True)[0].flatten() for i in range(9)])
+    torch.testing.assert_close(rows, expected, rtol=0, atol=1e-8)
+
+
+def test_rot9d_jvp_by_double_backward_equals_forward_mode():
+    # torch.autograd.functional.jvp differentiates the backward in its incoming gradient: it was 0
+    x = torch.randn(5, 9, dtype=torch.float64, generator=torch.Generator().manual_seed(4))
+    t = torch.randn(5, 9, dtype=torch.float64, generator=torch.Generator().manual_seed(5))
+    _, expected = torch.func.jvp(tq.rot9d_to_matrix, (x,), (t,))
+    _, tangent = torch.autograd.functional.jvp(tq.rot9d_to_matrix, x, t)
+    torch.testing.assert_close(tangent, expected, rtol=0, atol=1e-12)
+
+
+def test_rot9d_gradient_penalty_through_a_loss_linear_in_the_rotation():
+    # the once-differentiable version raised here (and before that, was silently 100% off)
     layer = torch.nn.Linear(4, 9, dtype=torch.float64)
-    x = torch.randn(5, 4, dtype=torch.float64, requires_grad=True)
-    target = tq.quat_to_matrix(tq.random_quat(5, dtype=torch.float64))
-    loss = -(tq.rot9d_to_matrix(layer(x)) * target).sum()
-    (g,) = torch.autograd.grad(loss, x, create_graph=True)
-    with pytest.raises(RuntimeError, match="once differentiable"):
-        torch.autograd.grad(g.pow(2).sum(), layer.weight)
+    x = torch.randn(5, 4, dtype=torch.float64, generator=torch.Generator().manual_seed(6))
+    target = tq.quat_to_matrix(tq.random_quat(5, generator=torch.Generator().manual_seed(7), dtype=torch.float64))
+
+    def penalty(weight):
+        w = weight.clone().requires_grad_()
+        loss = -(tq.rot9d_to_matrix(torch.nn.functional.linear(x, w, layer.bias)) * target).sum()
+        (g,) = torch.autograd.grad(loss, w, create_graph=True)
+        return g.pow(2).sum(), w
+
+    value, w = penalty(layer.weight.detach())
+    (analytic,) = torch.autograd.grad(value, w)
+    direction = torch.randn(layer.weight.shape, dtype=torch.float64, generator=torch.Generator().manual_seed(8))
+    numeric = (penalty(layer.weight.detach() + 1e-6 * direction)[0] - penalty(layer.weight.detach() - 1e-6 * direction)[0]) / 2e-6
+    torch.testing.assert_close((analytic * direction).sum(), numeric.detach(), rtol=1e-6, atol=1e-8)
 
 
-def test_rot9d_batched_gradients_work_and_a_differentiable_batched_jacobian_raises():
-    # jacobian(vectorize=True) runs the backward under autograd's legacy vmap; with create_graph
-    # the error node on a batched gradient crashed the process (segfault): it raises at once now
+def test_rot9d_batched_jacobians_equal_the_unbatched_ones():
+    # jacobian(vectorize=True) runs the backward under autograd's legacy vmap (is_grads_batched);
+    # with create_graph the backward applies the projection again there
     x = torch.randn(4, 9, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
     jacobian = torch.autograd.functional.jacobian
-    torch.testing.assert_close(jacobian(tq.rot9d_to_matrix, x, vectorize=True), jacobian(tq.rot9d_to_matrix, x),
-                               rtol=0, atol=1e-14)
-    with pytest.raises(RuntimeError, match="once differentiable"):
-        jacobian(tq.rot9d_to_matrix, x, vectorize=True, create_graph=True)
+    expected = jacobian(tq.rot9d_to_matrix, x)
+    for create_graph in (False, True):
+        torch.testing.assert_close(jacobian(tq.rot9d_to_matrix, x, vectorize=True, create_graph=create_graph).detach(),
+                                   expected, rtol=0, atol=1e-14)
 
 
 def test_rot9d_gradient_at_a_zero_matrix_is_finite():

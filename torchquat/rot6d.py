@@ -6,7 +6,7 @@ import torch
 from torch import Tensor
 
 from . import _closed_form as closed_form
-from ._closed_form import Rule, _legacy_batched, _transformed
+from ._closed_form import Rule, _transformed
 from ._dispatch import kernel
 from ._math import constant, is_small, matmul3, sum_of_squares
 from ._planes import columns, plane_buffer, rows, slot
@@ -177,9 +177,6 @@ def matrix_to_rot6d(R: Tensor) -> Tensor:
     return restore(matrix_to_rot6d_unchecked(R), dtype)
 
 
-_ONCE_DIFFERENTIABLE = "rot9d_to_matrix is once differentiable: its gradient cannot be differentiated again"
-
-
 class _SpecialProcrustes(torch.autograd.Function):
     """``R = U diag(1, 1, det(U V^T)) V^T`` with a closed-form backward.
 
@@ -188,11 +185,18 @@ class _SpecialProcrustes(torch.autograd.Function):
     projection itself only depends on ``s_i + s_j``: with ``M = U' S' V^T`` (``U' = U D``,
     ``S' = D S``), ``dR = R Omega`` where ``(V^T Omega V)_ij (s'_i + s'_j) = (X - X^T)_ij`` and
     ``X = U'^T dM V``. Its adjoint is ``grad_M = U' Z V^T`` with
-    ``Z_ij = (Y_ij - Y_ji) / (s'_i + s'_j)``, ``Y = U'^T grad_R V``. Once differentiable; forward
-    mode (``jvp``) is ``dR = U' W V^T``, ``W_ij = (X_ij - X_ji) / (s'_i + s'_j)``.
+    ``Z_ij = (Y_ij - Y_ji) / (s'_i + s'_j)``, ``Y = U'^T grad_R V``. Forward mode (``jvp``) is
+    ``dR = U' W V^T``, ``W_ij = (X_ij - X_ji) / (s'_i + s'_j)``. Differentiable any number of times:
+    where a graph of the gradient is asked for, the backward is :func:`_differentiable_vjp`.
     """
 
-    generate_vmap_rule = True
+    @staticmethod
+    def vmap(info, in_dims, M):
+        # A batch dimension is one more row dimension. (Not generate_vmap_rule: its vmapped backward
+        # fails, in torch.func.jacrev(jacrev(...)), once the backward applies this Function again.)
+        (dim,) = in_dims
+        M = M.movedim(dim, 0) if dim is not None else M.expand(info.batch_size, *M.shape)
+        return _projection().apply(M), (0, 0, 0, 0)
 
     @staticmethod
     def forward(M):
@@ -212,18 +216,34 @@ class _SpecialProcrustes(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad_R, _gu, _gs, _gv):
         U, S, Vh, M = ctx.saved_tensors
-        with torch.no_grad():
-            grad_M = matmul3(matmul3(U, _skew_over_sums(matmul3(matmul3(U.mT, grad_R), Vh.mT), S)), Vh)
-        if torch.is_grad_enabled() and not _transformed():  # create_graph: the gradient depends on M
-            # through U, S and V, which this backward does not differentiate. Its graph is an error
-            # node on M, raised when a second derivative reaches it (once_differentiable's marker
-            # hangs on grad_R alone, and only if it requires grad: a loss linear in R, such as the
-            # chordal one, got a silently wrong second derivative)
-            if _legacy_batched(grad_R):  # (is_grads_batched: an error node on a batched gradient
-                # crashes the process in torch 2.13, so the error comes now)
-                raise RuntimeError(_ONCE_DIFFERENTIABLE)
-            grad_M, _ = torch._C._functions.DelayedError(_ONCE_DIFFERENTIABLE.encode(), 2)(grad_M, M)
-        return grad_M
+        if torch.is_grad_enabled():  # create_graph, or torch.func (whose gradients may be differentiated)
+            return _differentiable_vjp(M, grad_R)
+        return matmul3(matmul3(U, _skew_over_sums(matmul3(matmul3(U.mT, grad_R), Vh.mT), S)), Vh)
+
+
+def _differentiable_vjp(M: Tensor, grad_R: Tensor) -> Tensor:
+    """The backward's ``grad_M`` as a function of ``M`` and ``grad_R`` that autograd and
+    ``torch.func`` can differentiate (Hessians, ``jvp`` by double backward), without the SVD's
+    derivative. With ``M = R P`` (``P = R^T M`` symmetric), ``grad_M = R X``, where the skew ``X``
+    solves ``P X + X P = R^T grad_R - grad_R^T R``. For a symmetric P,
+    ``P [x]_x + [x]_x P = [(tr(P) I - P) x]_x``, so ``x`` solves a 3 x 3 system whose eigenvalues
+    are the ``s'_i + s'_j`` (never negative), shifted by :func:`_skew_over_sums`' floor (finite at
+    rank 1 and below). Its own derivative needs only R's first derivative, this Function again: the
+    same numbers as the closed form to rounding, for a second SVD and a 3 x 3 solve."""
+    R = _projection().apply(M)[0]
+    P = matmul3(R.mT, M)
+    P = (P + P.mT) * 0.5  # (symmetric to rounding; exactly so, as its derivative is)
+    eye = torch.eye(3, dtype=M.dtype, device=M.device)
+    trace = P.diagonal(dim1=-2, dim2=-1).sum(-1)[..., None, None]
+    scale = trace.detach()  # s_1 + s_2 + s'_3, at least s_1
+    floor = torch.where(scale > 0, (scale * torch.finfo(M.dtype).eps).clamp_min(torch.finfo(M.dtype).tiny), 1.0)
+    B = matmul3(R.mT, grad_R)
+    B = B - B.mT
+    x = torch.linalg.solve(trace * eye - P + floor * eye, torch.stack((B[..., 2, 1], B[..., 0, 2], B[..., 1, 0]), dim=-1))
+    zero = torch.zeros_like(x[..., 0])
+    x0, x1, x2 = x.unbind(-1)
+    X = torch.stack((torch.stack((zero, -x2, x1), -1), torch.stack((x2, zero, -x0), -1), torch.stack((-x1, x0, zero), -1)), -2)
+    return matmul3(R, X)
 
 
 class _SpecialProcrustesForwardMode(_SpecialProcrustes):
@@ -235,6 +255,11 @@ class _SpecialProcrustesForwardMode(_SpecialProcrustes):
         U, S, Vh = ctx.saved_tensors[:3]
         W = _skew_over_sums(matmul3(matmul3(U.mT, tangent_M), Vh.mT), S)
         return matmul3(matmul3(U, W), Vh), None, None, None
+
+
+def _projection():
+    """The Function to apply: with forward mode only under the transforms that need it."""
+    return _SpecialProcrustesForwardMode if _transformed() else _SpecialProcrustes
 
 
 def _skew_over_sums(Y: Tensor, S: Tensor) -> Tensor:
@@ -257,8 +282,7 @@ def rot9d_to_matrix_unchecked(M: Tensor) -> Tensor:
     # LAPACK's SVD raises on NaN/inf: give such rows the identity, then NaN, never a crash.
     finite = torch.isfinite(M).all(-1, keepdim=True).all(-2, keepdim=True)
     eye = torch.eye(3, dtype=M.dtype, device=M.device)
-    projection = _SpecialProcrustesForwardMode if _transformed() else _SpecialProcrustes
-    R = projection.apply(torch.where(finite, M, eye))[0]
+    R = _projection().apply(torch.where(finite, M, eye))[0]
     return torch.where(finite, R, torch.nan)
 
 
