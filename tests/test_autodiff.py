@@ -135,13 +135,38 @@ def test_rot9d_second_derivatives_match_differences_of_the_gradient(at):
     f = lambda x: (tq.rot9d_to_matrix(x) * W).sum() + tq.rot9d_to_matrix(x)[..., 0, 1].pow(2).sum()
     expected = _rot9d_hessian_by_differences(f, M)
     assert expected.abs().max() > 0.1  # (the check is not vacuous)
+    with torch.no_grad():  # (functorch runs the backward without grad mode here)
+        under_no_grad = torch.func.hessian(f)(M)
     for H in (torch.func.hessian(f)(M), torch.func.jacrev(torch.func.jacrev(f))(M),
+              torch.func.jacrev(torch.func.jacfwd(f))(M), under_no_grad,
+              torch.func.vmap(torch.func.hessian(f))(M.expand(2, 3, 3))[1],  # (linalg.solve: wrong here)
               torch.autograd.functional.hessian(f, M), torch.autograd.functional.hessian(f, M, vectorize=True)):
         torch.testing.assert_close(H.reshape(9, 9), expected, rtol=0, atol=1e-8)
     x = M.clone().requires_grad_()
     (grad,) = torch.autograd.grad(f(x), x, create_graph=True)
     rows = torch.stack([torch.autograd.grad(grad.flatten()[i], x, retain_graph=True)[0].flatten() for i in range(9)])
     torch.testing.assert_close(rows, expected, rtol=0, atol=1e-8)
+
+
+def test_rot9d_forward_mode_over_forward_mode_raises():
+    # PyTorch runs a Function's jvp without forward mode: the inner tangent's own tangent would be 0
+    M = torch.randn(3, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(9))
+    f = lambda x: tq.rot9d_to_matrix(x).sum()
+    with pytest.raises(RuntimeError, match="forward mode over forward mode"):
+        torch.func.jacfwd(torch.func.jacfwd(f))(M)
+
+
+@pytest.mark.parametrize("dtype,scale", [(torch.float32, 1e-38), (torch.float32, 1e30), (torch.float64, 1e-300)])
+def test_rot9d_gradient_with_a_graph_equals_the_closed_form_at_any_scale(dtype, scale):
+    # the differentiable form's floor is relative (an absolute one lost the digits below 1e-36 in float32)
+    g = torch.Generator().manual_seed(10)
+    M = (torch.randn(4, 3, 3, generator=g, dtype=torch.float64) * scale).to(dtype)
+    W = torch.randn(4, 3, 3, generator=g, dtype=torch.float64).to(dtype)
+    gradients = []
+    for create_graph in (False, True):
+        x = M.clone().requires_grad_()
+        gradients.append(torch.autograd.grad((tq.rot9d_to_matrix(x) * W).sum(), x, create_graph=create_graph)[0].detach())
+    torch.testing.assert_close(gradients[1], gradients[0], rtol=0, atol=1e3 * torch.finfo(dtype).eps * gradients[0].abs().max())
 
 
 def test_rot9d_jvp_by_double_backward_equals_forward_mode():

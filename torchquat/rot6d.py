@@ -186,17 +186,17 @@ class _SpecialProcrustes(torch.autograd.Function):
     ``S' = D S``), ``dR = R Omega`` where ``(V^T Omega V)_ij (s'_i + s'_j) = (X - X^T)_ij`` and
     ``X = U'^T dM V``. Its adjoint is ``grad_M = U' Z V^T`` with
     ``Z_ij = (Y_ij - Y_ji) / (s'_i + s'_j)``, ``Y = U'^T grad_R V``. Forward mode (``jvp``) is
-    ``dR = U' W V^T``, ``W_ij = (X_ij - X_ji) / (s'_i + s'_j)``. Differentiable any number of times:
-    where a graph of the gradient is asked for, the backward is :func:`_differentiable_vjp`.
+    ``dR = U' W V^T``, ``W_ij = (X_ij - X_ji) / (s'_i + s'_j)``. Where the result of the backward
+    (or of ``jvp``) may be differentiated again, it is :func:`_rotation_times_skew_solution`
+    instead: the same numbers, differentiable.
     """
 
     @staticmethod
     def vmap(info, in_dims, M):
-        # A batch dimension is one more row dimension. (Not generate_vmap_rule: its vmapped backward
-        # fails, in torch.func.jacrev(jacrev(...)), once the backward applies this Function again.)
-        (dim,) = in_dims
-        M = M.movedim(dim, 0) if dim is not None else M.expand(info.batch_size, *M.shape)
-        return _projection().apply(M), (0, 0, 0, 0)
+        # A vmapped dimension is one more row dimension. (Not generate_vmap_rule: its vmapped
+        # backward fails, in torch.func.jacrev(jacrev(...)), once the backward applies this
+        # Function again.) The rule runs only for a batched M.
+        return _projection().apply(M.movedim(in_dims[0], 0)), (0, 0, 0, 0)
 
     @staticmethod
     def forward(M):
@@ -210,40 +210,44 @@ class _SpecialProcrustes(torch.autograd.Function):
     def setup_context(ctx, inputs, output):
         _, U_signed, S_signed, Vh = output
         ctx.save_for_backward(U_signed, S_signed, Vh, inputs[0])
-        ctx.save_for_forward(U_signed, S_signed, Vh)
+        ctx.save_for_forward(U_signed, S_signed, Vh, inputs[0])
         ctx.mark_non_differentiable(U_signed, S_signed, Vh)
 
     @staticmethod
     def backward(ctx, grad_R, _gu, _gs, _gv):
         U, S, Vh, M = ctx.saved_tensors
-        if torch.is_grad_enabled():  # create_graph, or torch.func (whose gradients may be differentiated)
-            return _differentiable_vjp(M, grad_R)
+        if _differentiated_again():
+            return _rotation_times_skew_solution(M, grad_R)
         return matmul3(matmul3(U, _skew_over_sums(matmul3(matmul3(U.mT, grad_R), Vh.mT), S)), Vh)
 
 
-def _differentiable_vjp(M: Tensor, grad_R: Tensor) -> Tensor:
-    """The backward's ``grad_M`` as a function of ``M`` and ``grad_R`` that autograd and
-    ``torch.func`` can differentiate (Hessians, ``jvp`` by double backward), without the SVD's
-    derivative. With ``M = R P`` (``P = R^T M`` symmetric), ``grad_M = R X``, where the skew ``X``
-    solves ``P X + X P = R^T grad_R - grad_R^T R``. For a symmetric P,
-    ``P [x]_x + [x]_x P = [(tr(P) I - P) x]_x``, so ``x`` solves a 3 x 3 system whose eigenvalues
-    are the ``s'_i + s'_j`` (never negative), shifted by :func:`_skew_over_sums`' floor (finite at
-    rank 1 and below). Its own derivative needs only R's first derivative, this Function again: the
-    same numbers as the closed form to rounding, for a second SVD and a 3 x 3 solve."""
-    R = _projection().apply(M)[0]
-    P = matmul3(R.mT, M)
-    P = (P + P.mT) * 0.5  # (symmetric to rounding; exactly so, as its derivative is)
-    eye = torch.eye(3, dtype=M.dtype, device=M.device)
-    trace = P.diagonal(dim1=-2, dim2=-1).sum(-1)[..., None, None]
-    scale = trace.detach()  # s_1 + s_2 + s'_3, at least s_1
-    floor = torch.where(scale > 0, (scale * torch.finfo(M.dtype).eps).clamp_min(torch.finfo(M.dtype).tiny), 1.0)
-    B = matmul3(R.mT, grad_R)
-    B = B - B.mT
-    x = torch.linalg.solve(trace * eye - P + floor * eye, torch.stack((B[..., 2, 1], B[..., 0, 2], B[..., 1, 0]), dim=-1))
-    zero = torch.zeros_like(x[..., 0])
-    x0, x1, x2 = x.unbind(-1)
-    X = torch.stack((torch.stack((zero, -x2, x1), -1), torch.stack((x2, zero, -x0), -1), torch.stack((-x1, x0, zero), -1)), -2)
-    return matmul3(R, X)
+def _differentiated_again() -> bool:
+    """Whether the backward's result may be differentiated: autograd's ``create_graph`` (grad mode
+    on in a backward), dual tensors (forward over reverse), or any ``torch.func`` transform. (From a
+    Function's backward the transforms outside its own level cannot be seen, so a single
+    ``torch.func.grad`` takes the differentiable form too: 1.9x the closed form's time.)"""
+    return torch.is_grad_enabled() or _transformed()
+
+
+def _functorch_derivative_levels():
+    """The differentiating ``torch.func`` transforms active (``"grad"``, ``"jvp"``), as a Function's
+    ``jvp`` sees them: all levels (a backward sees only its own)."""
+    if _interpreters is None:  # (a torch without the interpreter stack: assume two, the safe answer)
+        return ["grad", "grad"]
+    return [_LEVEL_NAMES[i.key()] for i in _interpreters() if i.key() in _LEVEL_NAMES]
+
+
+try:
+    from torch._C._functorch import TransformType as _TransformType
+    from torch._functorch.pyfunctorch import retrieve_all_functorch_interpreters as _interpreters
+    _LEVEL_NAMES = {_TransformType.Grad: "grad", _TransformType.Jvp: "jvp"}
+except ImportError:  # pragma: no cover
+    _interpreters = None
+
+
+_FORWARD_OVER_FORWARD = ("rot9d_to_matrix: forward mode over forward mode (jacfwd(jacfwd(...)), jvp of a jvp) is not "
+                         "supported: PyTorch runs a Function's jvp without forward mode. Use jacfwd(jacrev(...)) "
+                         "(torch.func.hessian) or jacrev(jacrev(...))")
 
 
 class _SpecialProcrustesForwardMode(_SpecialProcrustes):
@@ -252,7 +256,13 @@ class _SpecialProcrustesForwardMode(_SpecialProcrustes):
 
     @staticmethod
     def jvp(ctx, tangent_M):
-        U, S, Vh = ctx.saved_tensors[:3]
+        U, S, Vh, M = ctx.saved_tensors
+        levels = _functorch_derivative_levels() if torch._C._are_functorch_transforms_active() else []
+        if levels.count("jvp") >= 2 or getattr(torch.autograd.forward_ad, "_current_level", -1) >= 1:
+            raise RuntimeError(_FORWARD_OVER_FORWARD)
+        if len(levels) >= 2 or (torch.is_grad_enabled() and (M.requires_grad or tangent_M.requires_grad)):
+            # reverse over forward (jacrev(jacfwd(...)), or dual tensors with a graph): differentiable
+            return _rotation_times_skew_solution(M, tangent_M), None, None, None
         W = _skew_over_sums(matmul3(matmul3(U.mT, tangent_M), Vh.mT), S)
         return matmul3(matmul3(U, W), Vh), None, None, None
 
@@ -260,6 +270,42 @@ class _SpecialProcrustesForwardMode(_SpecialProcrustes):
 def _projection():
     """The Function to apply: with forward mode only under the transforms that need it."""
     return _SpecialProcrustesForwardMode if _transformed() else _SpecialProcrustes
+
+
+def _rotation_times_skew_solution(M: Tensor, T: Tensor) -> Tensor:
+    """``R [x]_x`` with ``(tr(P) I - P) x = vee(R^T T - T^T R)``, ``R`` the projection of ``M`` applied
+    again and ``P = R^T M``, as a function of ``M`` and ``T`` that autograd and ``torch.func`` can
+    differentiate (without the SVD's derivative). It is the backward's ``grad_M`` for ``T = grad_R``
+    and the forward mode's ``dR`` for ``T = dM``: with ``M = R P`` (P symmetric) the skew ``X`` of
+    ``grad_M = R X`` or ``dR = R X`` solves ``P X + X P = R^T T - T^T R``, and for a symmetric P,
+    ``P [x]_x + [x]_x P = [(tr(P) I - P) x]_x``: a 3 x 3 system whose eigenvalues are the
+    ``s'_i + s'_j`` (never negative). Its own derivative needs only R's first derivative (this
+    Function again), so any order works. The same numbers as the closed forms to rounding, for a
+    second SVD and a 3 x 3 inverse.
+
+    The system is divided by ``tr(P)`` (at least ``s_1``), so the floor, ``eps`` added to its
+    eigenvalues (finite at rank 1 and below), is relative at any scale, as the closed forms'.
+    ``linalg.inv``, not ``linalg.solve``: torch 2.13's ``solve`` has wrong forward-mode derivatives
+    under a nested vmap (``vmap(torch.func.hessian(...))``). Autocast is off: a bfloat16 system would
+    lose the gradient's digits (and ``inv`` would mix dtypes)."""
+    with torch.autocast(M.device.type, enabled=False):
+        R = _projection().apply(M)[0]
+        P = matmul3(R.mT, M)
+        P = (P + P.mT) * 0.5  # (symmetric to rounding; exactly so, as its derivative is)
+        eye = torch.eye(3, dtype=M.dtype, device=M.device)
+        trace = P.diagonal(dim1=-2, dim2=-1).sum(-1)[..., None, None]
+        positive = trace.detach() > 0  # (0 only for a zero matrix: the unit-scale system, floor 1)
+        unit = torch.where(positive, trace.detach(), 1.0)
+        floor = torch.where(positive, torch.finfo(M.dtype).eps, 1.0)
+        B = matmul3(R.mT, T)
+        B = B - B.mT
+        b = torch.stack((B[..., 2, 1], B[..., 0, 2], B[..., 1, 0]), dim=-1)
+        x = (torch.linalg.inv((trace * eye - P) / unit + floor * eye) * b.unsqueeze(-2)).sum(-1) / unit.squeeze(-1)
+        zero = torch.zeros_like(x[..., 0])
+        x0, x1, x2 = x.unbind(-1)
+        X = torch.stack((torch.stack((zero, -x2, x1), -1), torch.stack((x2, zero, -x0), -1),
+                         torch.stack((-x1, x0, zero), -1)), -2)
+        return matmul3(R, X)
 
 
 def _skew_over_sums(Y: Tensor, S: Tensor) -> Tensor:
@@ -291,7 +337,9 @@ def rot9d_to_matrix(x: Tensor) -> Tensor:
 
     ``R = U diag(1, 1, det(U V^T)) V^T`` from the SVD ``x = U S V^T``: the closest rotation in
     Frobenius norm, always det +1. The backward pass is closed-form and stays finite when
-    singular values coincide (autograd through ``svd`` does not); it is once differentiable.
+    singular values coincide (autograd through ``svd`` does not). Second and higher derivatives
+    are exact (double backward, ``torch.func.hessian``, ``jacrev(jacrev(...))``,
+    ``jacrev(jacfwd(...))``); forward mode over forward mode raises.
 
     Args:
         x: 9 numbers read row-major, or a ``(..., 3, 3)`` matrix.
