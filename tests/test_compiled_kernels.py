@@ -245,3 +245,30 @@ def test_switching_the_literals_on_recompiles_no_users_compiled_code(monkeypatch
         pytest.skip(f"this torch's dynamo ({torch.__version__}) cannot trace id() of a tuple")
     torch.testing.assert_close(user(q), first, rtol=0, atol=0)
     assert counter.frame_count == 1
+
+
+@pytest.mark.parametrize("guard", ["hook", "node"])
+@pytest.mark.parametrize("name", ["quat_to_matrix", "quat_to_euler[YXZ]", "rot6d_to_matrix", "quat_multiply"])
+def test_a_second_derivative_through_a_compiled_kernel_raises_and_the_first_stays_right(name, guard, compiled, monkeypatch):
+    # For a loss linear in the kernel's output, the compiled backward's gradient was connected to
+    # nothing: torch.autograd.functional.hessian and hvp gave 0, autograd.grad(allow_unused) None
+    monkeypatch.setattr(tq._dispatch, "_backend", "eager")  # (aot_autograd's compiled backward, as inductor's)
+    if guard == "node":  # (the fallback, where the compiled node's edges are not the inputs' own)
+        monkeypatch.setattr(tq._dispatch, "_first_order_only", lambda out, tensors: tq._dispatch._FirstOrder.apply(out, *tensors))
+    fn, generic, _ = ALL[name]
+    if name == "quat_multiply":  # (the same tensor twice: one edge per argument)
+        fn, x = (lambda q: ALL[name][0](q, q)), generic()[0]
+    else:
+        (x,) = generic()
+    w = torch.randn(fn(x).shape, dtype=x.dtype, generator=torch.Generator().manual_seed(3))
+    loss = lambda y: (w * fn(y)).sum()
+    with pytest.raises(RuntimeError, match="compiled kernels are first-order"):
+        torch.autograd.functional.hessian(loss, x)
+    with pytest.raises(RuntimeError, match="compiled kernels are first-order"):
+        torch.autograd.functional.hvp(loss, x, torch.ones_like(x))
+    leaf = x.clone().requires_grad_()
+    (graphed,) = torch.autograd.grad(loss(leaf), leaf, create_graph=True)  # its value is right
+    tq.use_compiled_kernels(False)
+    (expected,) = torch.autograd.grad(loss(leaf), leaf)
+    torch.testing.assert_close(graphed.detach(), expected, rtol=0, atol=1e-10)
+    assert torch.func.hessian(loss)(x).abs().max() > 0  # (the true Hessian is not 0: the check is not vacuous)

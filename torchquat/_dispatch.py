@@ -21,7 +21,7 @@ from typing import Callable, Dict, Optional, Tuple
 import torch
 from torch import Tensor
 
-from . import _math, _planes
+from . import _closed_form, _math, _planes
 
 __all__ = ["use_compiled_kernels", "compiled_kernels_enabled", "kernel"]
 
@@ -38,7 +38,8 @@ def use_compiled_kernels(enabled: bool = True) -> None:
     """Route every conversion through ``torch.compile``'d kernels (or back to eager).
 
     Also set by the environment variable ``TORCHQUAT_COMPILE=1``. Results are the same to
-    rounding; gradients are first-order only on this path (double backward needs eager).
+    rounding; gradients are first-order only on this path: a second derivative through a
+    compiled kernel raises (double backward and Hessians need eager; torch.func runs eager).
 
     Args:
         enabled: True to use compiled kernels, False for plain eager PyTorch (the default).
@@ -162,6 +163,71 @@ def _small_cpu_batch(tensors: Tuple[Tensor, ...], row_dims: Tuple[int, ...], row
     return True
 
 
+_SECOND_ORDER = ("torchquat's compiled kernels are first-order: a derivative of their gradient is not available. "
+                 "Switch them off (torchquat.use_compiled_kernels(False)) for double backward and Hessians; "
+                 "torch.func transforms run the eager kernels")
+
+
+def _first_order_only(output: Tensor, tensors) -> Tensor:
+    """``output`` of a compiled kernel, whose gradients raise if differentiated again.
+
+    A compiled backward asked for a graph (``create_graph``) gives a gradient that cannot be
+    differentiated, and when the incoming gradient needs none (a loss linear in the kernel's
+    output) nothing even connects that gradient to the inputs: a Hessian came out as 0, or
+    ``None``, silently. So with a graph asked for, each input's gradient gets a zero term through
+    an error node on that input, and a second derivative raises instead. A hook on the compiled
+    backward node adds it (5-10 us a call with the backward at 8,192 rows, against 15-30 us for
+    an autograd Function on the output); where the node's edges are not the inputs' own, the
+    Function does."""
+    node, edges = output.grad_fn, []
+    for x in tensors:
+        if x.requires_grad:
+            edge = (x.grad_fn, x.output_nr) if x.grad_fn is not None else None
+            edges.append((x, edge))
+    slots = {}
+    if node is not None:
+        for k, (next_node, index) in enumerate(node.next_functions):
+            for x, edge in edges:
+                if (next_node, index) == edge or (edge is None and getattr(next_node, "variable", None) is x):
+                    slots[k] = x
+    if node is None or len(set(map(id, slots.values()))) != len(edges):
+        return _FirstOrder.apply(output, *tensors)
+    node.register_hook(functools.partial(_second_order_hook, slots))
+    return output
+
+
+def _second_order_hook(slots, grad_inputs, grad_outputs):
+    if not torch.is_grad_enabled() or any(_closed_form._legacy_batched(g) for g in grad_inputs if g is not None):
+        return None  # (first order; an error node on a legacy-batched gradient crashes torch 2.13)
+    grads = list(grad_inputs)
+    for k, x in slots.items():
+        term = _error_term(x)
+        grads[k] = term if grads[k] is None else grads[k] + term
+    return tuple(grads)
+
+
+def _error_term(x: Tensor) -> Tensor:
+    """Zeros shaped as ``x``, connected to it through a node that raises when differentiated."""
+    return torch._C._functions.DelayedError(_SECOND_ORDER.encode(), 2)(torch.zeros_like(x), x)[0]
+
+
+class _FirstOrder(torch.autograd.Function):
+    """Identity on a compiled kernel's output, given its inputs: the same as the hook of
+    :func:`_first_order_only`, as an autograd node of its own."""
+
+    @staticmethod
+    def forward(ctx, output, *inputs):
+        ctx.save_for_backward(*inputs)
+        return output.view_as(output)
+
+    @staticmethod
+    def backward(ctx, grad, *_):
+        if not torch.is_grad_enabled() or _closed_form._legacy_batched(grad):
+            return (grad,) + (None,) * len(ctx.needs_input_grad[1:])
+        return (grad,) + tuple(_error_term(x) if wanted else None
+                               for x, wanted in zip(ctx.saved_tensors, ctx.needs_input_grad[1:]))
+
+
 def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[int, ...]] = None,
            compiled_from_rows: int = 0) -> Callable:
     """Mark an unchecked kernel ``fn(*tensors, **static_options)`` as compilable.
@@ -200,6 +266,8 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
             compiled = _compiled_for(fn, tuple(sorted(static.items())), context)
             if compiled not in _past_limit:
                 try:
+                    if context[0]:
+                        return _first_order_only(compiled(*tensors), tensors)
                     return compiled(*tensors)
                 except Exception as error:
                     if type(error).__name__ != "FailOnRecompileLimitHit":
