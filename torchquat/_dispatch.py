@@ -176,24 +176,37 @@ def _first_order_only(output: Tensor, tensors) -> Tensor:
     output) nothing even connects that gradient to the inputs: a Hessian came out as 0, or
     ``None``, silently. So with a graph asked for, each input's gradient gets a zero term through
     an error node on that input, and a second derivative raises instead. A hook on the compiled
-    backward node adds it (5-10 us a call with the backward at 8,192 rows, against 15-30 us for
-    an autograd Function on the output); where the node's edges are not the inputs' own, the
-    Function does."""
-    node, edges = output.grad_fn, []
-    for x in tensors:
-        if x.requires_grad:
-            edge = (x.grad_fn, x.output_nr) if x.grad_fn is not None else None
-            edges.append((x, edge))
+    backward node adds it (1.00-1.06x the time with the backward at 1 and 8,192 rows, where an
+    autograd Function on the output took 1.05-1.15x); where the node's edges are not the inputs'
+    own, that Function does. An output that no compiled node made (a boolean mask, or a call that ran
+    eagerly past the recompile limit) is returned as it is: eager kernels are differentiable
+    any number of times."""
+    node = _compiled_node(output)
+    if node is None:
+        return output
+    edges = [(x, (x.grad_fn, x.output_nr) if x.grad_fn is not None else None) for x in tensors if x.requires_grad]
     slots = {}
-    if node is not None:
-        for k, (next_node, index) in enumerate(node.next_functions):
-            for x, edge in edges:
-                if (next_node, index) == edge or (edge is None and getattr(next_node, "variable", None) is x):
-                    slots[k] = x
-    if node is None or len(set(map(id, slots.values()))) != len(edges):
+    for k, (next_node, index) in enumerate(node.next_functions):
+        for x, edge in edges:
+            if (next_node, index) == edge or (edge is None and getattr(next_node, "variable", None) is x):
+                slots[k] = x
+    if len(set(map(id, slots.values()))) != len(edges):  # (the same tensor twice, say)
         return _FirstOrder.apply(output, *tensors)
     node.register_hook(functools.partial(_second_order_hook, slots))
     return output
+
+
+def _compiled_node(output: Tensor):
+    """The compiled function's backward node behind ``output`` (through views that
+    aot_autograd regenerates outside the graph), or None."""
+    node = output.grad_fn
+    for _ in range(4):
+        if node is None or type(node).__name__ == "CompiledFunctionBackward":
+            return node
+        if len(node.next_functions) != 1 or "View" not in type(node).__name__ and "Strided" not in type(node).__name__:
+            return None
+        node = node.next_functions[0][0]
+    return None
 
 
 def _second_order_hook(slots, grad_inputs, grad_outputs):
@@ -276,7 +289,8 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
             elif _set_stance is not None:  # its graphs still serve the layouts they were made for;
                 # a new one runs eagerly at once (no guard failure, recompile attempt and warning a call)
                 with _set_stance("eager_on_recompile"):
-                    return compiled(*tensors)
+                    output = compiled(*tensors)
+                return _first_order_only(output, tensors) if context[0] else output
         if (blocked_row_dims is not None
                 and (tensors[0].numel() >= _BLOCKED_FROM or tensors[-1].numel() >= _BLOCKED_FROM
                      or (len(tensors) > 2 and any(t.numel() >= _BLOCKED_FROM for t in tensors[1:-1])))

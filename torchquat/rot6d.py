@@ -229,20 +229,20 @@ def _differentiated_again() -> bool:
     return torch.is_grad_enabled() or _transformed()
 
 
+try:  # (private: where it is missing, the answer is the safe one)
+    from torch._C._functorch import TransformType as _TransformType
+    from torch._functorch.pyfunctorch import retrieve_all_functorch_interpreters as _interpreters
+    _LEVEL_NAMES = {_TransformType.Grad: "grad", _TransformType.Jvp: "jvp"}
+except ImportError:  # pragma: no cover
+    _interpreters = None
+
+
 def _functorch_derivative_levels():
     """The differentiating ``torch.func`` transforms active (``"grad"``, ``"jvp"``), as a Function's
     ``jvp`` sees them: all levels (a backward sees only its own)."""
     if _interpreters is None:  # (a torch without the interpreter stack: assume two, the safe answer)
         return ["grad", "grad"]
     return [_LEVEL_NAMES[i.key()] for i in _interpreters() if i.key() in _LEVEL_NAMES]
-
-
-try:
-    from torch._C._functorch import TransformType as _TransformType
-    from torch._functorch.pyfunctorch import retrieve_all_functorch_interpreters as _interpreters
-    _LEVEL_NAMES = {_TransformType.Grad: "grad", _TransformType.Jvp: "jvp"}
-except ImportError:  # pragma: no cover
-    _interpreters = None
 
 
 _FORWARD_OVER_FORWARD = ("rot9d_to_matrix: forward mode over forward mode (jacfwd(jacfwd(...)), jvp of a jvp) is not "
