@@ -190,7 +190,7 @@ def _first_order_only(output: Tensor, tensors) -> Tensor:
         for x, edge in edges:
             if (next_node, index) == edge or (edge is None and getattr(next_node, "variable", None) is x):
                 slots[k] = x
-    if len(set(map(id, slots.values()))) != len(edges):  # (the same tensor twice, say)
+    if len(set(map(id, slots.values()))) != len({id(x) for x, _ in edges}):  # (aot gives a repeated input one edge)
         return _FirstOrder.apply(output, *tensors)
     node.register_hook(functools.partial(_second_order_hook, slots))
     return output
@@ -231,7 +231,7 @@ class _FirstOrder(torch.autograd.Function):
     @staticmethod
     def forward(ctx, output, *inputs):
         ctx.save_for_backward(*inputs)
-        return output.view_as(output)
+        return output.clone()  # (not a view: callers may write into the result in place)
 
     @staticmethod
     def backward(ctx, grad, *_):
