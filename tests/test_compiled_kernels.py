@@ -284,3 +284,24 @@ def test_the_same_tensor_twice_through_a_compiled_kernel_can_be_written_in_place
     tq.use_compiled_kernels(False)
     (expected,) = torch.autograd.grad((2.0 * tq.quat_multiply(a, a)).sum(), a)
     torch.testing.assert_close(g, expected, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("guard", ["hook", "node"])
+def test_a_batch_of_output_gradients_through_a_compiled_kernel_raises_a_clear_error(guard, compiled, monkeypatch):
+    # inductor's backward reads its inputs' storage, which autograd's vmap (is_grads_batched,
+    # jacobian(vectorize=True)) tensors lack: it failed with "Cannot access data pointer"
+    if guard == "node":
+        monkeypatch.setattr(tq._dispatch, "_first_order_only", lambda out, tensors: tq._dispatch._FirstOrder.apply(out, *tensors))
+    fn, generic, _ = ALL["quat_to_matrix"]
+    (x,) = generic()
+    with pytest.raises(RuntimeError, match="one output gradient at a time"):
+        torch.autograd.functional.jacobian(fn, x, vectorize=True)
+    leaf = x.clone().requires_grad_()
+    with pytest.raises(RuntimeError, match="one output gradient at a time"):
+        torch.autograd.grad(fn(leaf), leaf, torch.eye(9, dtype=x.dtype).reshape(9, 1, 3, 3).expand((9,) + fn(x).shape),
+                            is_grads_batched=True)
+    unbatched, through_func = torch.autograd.functional.jacobian(fn, x), torch.func.jacrev(fn)(x)
+    tq.use_compiled_kernels(False)
+    expected = torch.autograd.functional.jacobian(fn, x, vectorize=True)
+    torch.testing.assert_close(unbatched, expected, rtol=0, atol=1e-12)
+    torch.testing.assert_close(through_func, expected, rtol=0, atol=1e-12)

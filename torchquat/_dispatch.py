@@ -166,6 +166,11 @@ def _small_cpu_batch(tensors: Tuple[Tensor, ...], row_dims: Tuple[int, ...], row
 _SECOND_ORDER = ("torchquat's compiled kernels are first-order: a derivative of their gradient is not available. "
                  "Switch them off (torchquat.use_compiled_kernels(False)) for double backward and Hessians; "
                  "torch.func transforms run the eager kernels")
+_BATCHED_GRADIENTS = ("torchquat's compiled kernels take one output gradient at a time: a batch of them "
+                      "(torch.autograd.grad(..., is_grads_batched=True), torch.autograd.functional.jacobian or "
+                      "hessian with vectorize=True) cannot run through their compiled backward. Use vectorize=False, "
+                      "torch.func.jacrev (torch.func transforms run the eager kernels), or switch the compiled "
+                      "kernels off (torchquat.use_compiled_kernels(False))")
 
 
 def _first_order_only(output: Tensor, tensors) -> Tensor:
@@ -184,6 +189,9 @@ def _first_order_only(output: Tensor, tensors) -> Tensor:
     node = _compiled_node(output)
     if node is None:
         return output
+    # (inductor's backward reads its inputs' storage, which autograd's legacy vmap tensors lack:
+    # without this a batch of output gradients fails with "Cannot access data pointer")
+    node.register_prehook(_batched_gradients_prehook)
     edges = [(x, (x.grad_fn, x.output_nr) if x.grad_fn is not None else None) for x in tensors if x.requires_grad]
     slots = {}
     for k, (next_node, index) in enumerate(node.next_functions):
@@ -209,9 +217,15 @@ def _compiled_node(output: Tensor):
     return None
 
 
+def _batched_gradients_prehook(grad_outputs):
+    if any(_closed_form._legacy_batched(g) for g in grad_outputs if g is not None):
+        raise RuntimeError(_BATCHED_GRADIENTS)
+    return None
+
+
 def _second_order_hook(slots, grad_inputs, grad_outputs):
-    if not torch.is_grad_enabled() or any(_closed_form._legacy_batched(g) for g in grad_inputs if g is not None):
-        return None  # (first order; an error node on a legacy-batched gradient crashes torch 2.13)
+    if not torch.is_grad_enabled():  # (first order; batched gradients never get here: the prehook raises)
+        return None
     grads = list(grad_inputs)
     for k, x in slots.items():
         term = _error_term(x)
@@ -235,7 +249,9 @@ class _FirstOrder(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad, *_):
-        if not torch.is_grad_enabled() or _closed_form._legacy_batched(grad):
+        if _closed_form._legacy_batched(grad):  # (the compiled node behind it would fail obscurely)
+            raise RuntimeError(_BATCHED_GRADIENTS)
+        if not torch.is_grad_enabled():
             return (grad,) + (None,) * len(ctx.needs_input_grad[1:])
         return (grad,) + tuple(_error_term(x) if wanted else None
                                for x, wanted in zip(ctx.saved_tensors, ctx.needs_input_grad[1:]))
