@@ -49,6 +49,14 @@ def jacobian_rule(plain: Callable, with_jacobian: Callable, values: Optional[Cal
     return Rule(plain, forward, backward, values)
 
 
+_any_autocast = getattr(torch._C, "_is_any_autocast_enabled", lambda: True)
+
+
+def autocast_enabled(device_type: str) -> bool:
+    """Whether autocast is on for ``device_type`` (the common answer, no, in one C call)."""
+    return _any_autocast() and torch.is_autocast_enabled(device_type)
+
+
 _legacy_batched = getattr(torch._C._functorch, "is_legacy_batchedtensor", lambda x: False)
 
 
@@ -77,6 +85,10 @@ class _ClosedForm(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad: Tensor):
+        if autocast_enabled(grad.device.type):  # (a backward run inside an autocast region: the
+            # forward ran in the inputs' precision, and so does its gradient, matmuls included)
+            with torch.autocast(grad.device.type, enabled=False):
+                return _ClosedForm.backward(ctx, grad)
         tensors = ctx.saved_tensors
         inputs, saved = tensors[:ctx.n_inputs], tensors[ctx.n_inputs:]
         wanted = ctx.needs_input_grad[2:]

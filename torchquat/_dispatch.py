@@ -31,7 +31,6 @@ _past_limit = set()  # compiled functions that reached dynamo's recompile limit
 _set_stance = getattr(torch.compiler, "set_stance", None)  # (torch 2.6 and later)
 _backend = "inductor"  # tests swap in "eager" to check tracing and caching without compiling C++
 # one flag read instead of a device lookup and a per-device query (0.5 us a call at one rotation)
-_any_autocast = getattr(torch._C, "_is_any_autocast_enabled", lambda: True)
 
 
 def use_compiled_kernels(enabled: bool = True) -> None:
@@ -278,7 +277,7 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
 
     @functools.wraps(fn)
     def dispatch(*tensors, **static):
-        if _any_autocast() and torch.is_autocast_enabled(device := tensors[0].device.type):
+        if _closed_form.autocast_enabled(device := tensors[0].device.type):
             # Autocast would round the kernels' small matmuls to bfloat16/float16; rotations
             # are computed in the input's precision (float32 at least) and returned in it.
             with torch.autocast(device, enabled=False):
