@@ -86,6 +86,8 @@ def run_convert(args: argparse.Namespace) -> int:
     chunk_size = DEFAULT_CHUNK_SIZE if args.chunk_size is None else args.chunk_size
     if chunk_size < 1:
         return _fail("--chunk-size must be a positive number of lines")
+    if args.degrees and not (args.to or "").lower().startswith("euler"):
+        return _fail("--degrees applies to Euler angles only: use it with --to euler:SEQ")
     progress = _progress_bar(args.input)
     try:
         rows = convert_file(args.input, args.output, to=args.to, from_format=args.from_format, degrees=args.degrees,
@@ -180,8 +182,10 @@ def main(argv: Optional[List[str]] = None) -> int:
     if getattr(args, "run", None) is None:
         parser.print_help(sys.stderr)
         return 2
+    from ._signals import sigterm_as_interrupt
     try:
-        return int(args.run(args) or 0)
+        with sigterm_as_interrupt():
+            return int(args.run(args) or 0)
     except KeyboardInterrupt:
         print("torchquat: interrupted", file=sys.stderr)
         return 130

@@ -14,12 +14,9 @@ Usage::
 """
 
 import argparse
-import contextlib
 import os
 import platform
-import signal
 import sys
-import threading
 import time
 from typing import List, Optional
 
@@ -28,6 +25,7 @@ import torch
 from . import ops as _ops
 from . import report as _report
 from . import timing as _timing
+from .._signals import sigterm_as_interrupt
 from ..io.streaming import output_folder_problem
 
 __all__ = ["add_arguments", "run", "main"]
@@ -93,24 +91,6 @@ def _callable(impl: _ops.Impl, inputs, backward: bool, seed: int):
         return torch.autograd.grad(outs, diff, grads, allow_unused=True)
 
     return step
-
-
-@contextlib.contextmanager
-def _sigterm_as_interrupt():
-    """Inside it, SIGTERM (what ``timeout`` and job schedulers send) raises ``KeyboardInterrupt``
-    as Ctrl-C does, so that a stopped run still reports what it measured."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def interrupt(signum, frame):
-        raise KeyboardInterrupt("SIGTERM")
-
-    previous = signal.signal(signal.SIGTERM, interrupt)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 def _progress(text: str, enabled: bool) -> None:
@@ -193,7 +173,7 @@ def run(args: argparse.Namespace) -> int:
     total = len(ns) * len(selected)
     done, current, stopped = 0, None, None  # stopped: the signal's name, if the run was interrupted
     started = time.perf_counter()
-    with _sigterm_as_interrupt():
+    with sigterm_as_interrupt():
         try:
             for n in ns:
                 inputs = _ops.make_inputs(n, dtype, seed, device)

@@ -124,3 +124,14 @@ def check_matrices(path, R: np.ndarray, line_numbers: np.ndarray, report: Report
                      f"max |R^T R - I| < {ORTHOGONALITY_TOLERANCE:g})", int(project.size),
                      float(error[project].max()))
     return R, int(project.size)
+
+
+def check_rot6d(path, x: np.ndarray, line_numbers: np.ndarray) -> np.ndarray:
+    """Reject 6D rows whose two vectors are zero or collinear: they name no rotation (the
+    conversion gives NaN, which would be written as numbers)."""
+    finite = torch.isfinite(convert(torch.from_numpy(x), "rot6d", "matrix")).flatten(1).all(1).numpy()
+    if not finite.all():
+        raise PoseFileError(path, "6D rotation whose two vectors are zero or collinear: it names no rotation",
+                            int(line_numbers[int(np.argmin(finite))]))
+    return x
+

@@ -18,10 +18,46 @@ from .poses import PoseFileError, Poses
 from .textparse import decimal_seconds_to_ns, iter_line_chunks, parse_table
 
 __all__ = ["read_tum", "read_kitti", "read_euroc", "TumWriter", "KittiWriter", "EurocWriter",
-           "time_fields", "time_column", "EUROC_HEADER"]
+           "time_fields", "time_column", "EUROC_HEADER", "euroc_header_problem"]
 
 EUROC_HEADER = (b"#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],"
                 b"q_RS_w [],q_RS_x [],q_RS_y [],q_RS_z []\n")
+
+
+def euroc_header_problem(line: bytes) -> Optional[str]:
+    """What keeps a header line from naming EuRoC's columns (``timestamp``, then ``p_*`` x, y, z,
+    then ``q_*`` w, x, y, z, units in brackets allowed), or ``None`` if it names them. A header
+    with another order (a scalar-last quaternion, say) must not be read as EuRoC: its numbers
+    would be taken as w-first without a word."""
+    names = [field.split(b"[")[0].strip().lower() for field in line.strip().lstrip(b"#").split(b",")]
+    expected = "timestamp, p_x, p_y, p_z, q_w, q_x, q_y, q_z"
+    if len(names) < 8 or not names[0].startswith(b"timestamp"):
+        return f"its header does not start with EuRoC's columns ({expected})"
+    for column, name, (kind, axis) in zip(range(2, 9), names[1:8], (b"px", b"py", b"pz", b"qw", b"qx", b"qy", b"qz")):
+        if not (name.startswith(bytes((kind,))) and name.endswith(bytes((axis,)))):
+            return (f"its header names column {column} {name.decode('utf-8', 'replace')!r} where EuRoC "
+                    f"has {kind:c}_{axis:c} ({expected})")
+    return None
+
+
+def _check_euroc_header(path, stream: BinaryIO) -> None:
+    """Raise if the first non-blank line is a header that does not name EuRoC's columns."""
+    if not stream.seekable():
+        return
+    start, number = stream.tell(), 0
+    for line in stream:
+        number += 1
+        if line.strip():
+            break
+    else:
+        line = b""
+    stream.seek(start)
+    first = line.lstrip()[:1]
+    if first and not (first.isdigit() or first in b"+-."):  # a header (data lines start with a number)
+        problem = euroc_header_problem(line)
+        if problem is not None:
+            raise PoseFileError(path, f"not EuRoC ground truth: {problem}; for other columns use a plain CSV "
+                                "(--from csv) with the names it documents", number)
 
 
 def read_tum(path, stream: BinaryIO, chunk_lines: int, report: Report, **_) -> Iterator[Poses]:
@@ -66,6 +102,7 @@ def read_kitti(path, stream: BinaryIO, chunk_lines: int, report: Report,
 
 def read_euroc(path, stream: BinaryIO, chunk_lines: int, report: Report, **_) -> Iterator[Poses]:
     """Yield EuRoC ground-truth poses (rotations as ``"quat"``, times exact in nanoseconds)."""
+    _check_euroc_header(path, stream)
     for chunk in iter_line_chunks(stream, chunk_lines):
         table = parse_table(path, chunk, range(8, 64), "EuRoC: timestamp [ns], p_x, p_y, p_z, q_w, q_x, q_y, q_z, ...",
                             delimiter=b",", keep_first_text=True)
@@ -85,11 +122,13 @@ def _integer_ns(path, table) -> np.ndarray:
     except (ValueError, OverflowError):
         for text, line in zip(texts, table.line_numbers):
             try:
-                int(text)
-            except (ValueError, OverflowError):
+                value = int(text)
+            except ValueError:
                 raise PoseFileError(path, f"EuRoC timestamp must be integer nanoseconds, got "
                                     f"{text.decode('utf-8', 'replace')!r}", int(line)) from None
-        raise
+            if not -2 ** 63 <= value < 2 ** 63:
+                raise PoseFileError(path, f"EuRoC timestamp {value} does not fit int64 nanoseconds", int(line))
+        raise  # (unreachable: one of the texts failed)
 
 
 def time_column(poses: Poses, report: Report, row: int):
@@ -199,7 +238,12 @@ class EurocWriter(_TextWriter):
             ns = poses.timestamps_ns
         elif poses.timestamps is not None:
             self.report.note("EuRoC times are integer nanoseconds: seconds * 1e9 rounded to the nearest ns")
-            ns = np.rint(np.asarray(poses.timestamps, dtype=np.float64) * 1e9).astype(np.int64)
+            scaled = np.rint(np.asarray(poses.timestamps, dtype=np.float64) * 1e9)
+            outside = ~(np.abs(scaled) < 2.0 ** 63)  # (int64's range; NaN is outside too)
+            if outside.any():
+                raise ValueError(f"EuRoC output: the time {float(poses.timestamps[int(np.argmax(outside))])!r} s does not fit "
+                                 "its int64 nanoseconds (about +-9.2e9 s)")
+            ns = scaled.astype(np.int64)
         else:
             self.report.note("input has no timestamps: the row index is written as the time (ns)")
             ns = np.arange(self.rows, self.rows + len(poses), dtype=np.int64)

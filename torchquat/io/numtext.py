@@ -93,7 +93,9 @@ def _significant(a: np.ndarray, single: bool):
         precision, high_digits = 17, 8
         for _ in range(2):
             hi, lo = _scaled(a, 7 - exp10)
-            exp10 = exp10 + (hi >= 1e8) - (hi < 1e7)
+            # hi + lo against the bounds (hi may round onto or past one the exact product is
+            # below); near a bound hi - bound is exact (Sterbenz), and elsewhere lo cannot flip it
+            exp10 = exp10 + ((hi - 1e8) + lo >= 0) - ((hi - 1e7) + lo < 0)
         high, fraction = _floor_dd(hi, lo)
         rest = fraction * 1e9
     low_digits = precision - high_digits

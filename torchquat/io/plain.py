@@ -14,13 +14,14 @@ the rotation columns, named so that reading the file back recovers the represent
 """
 
 import re
+import zipfile
 from typing import BinaryIO, Iterator, List, Optional, Tuple
 
 import numpy as np
 import torch
 
 from ..registry import REPRESENTATIONS
-from .checks import Report, check_matrices, normalize_quaternions
+from .checks import Report, check_matrices, check_rot6d, normalize_quaternions
 from .formats import positions_of, time_column
 from .numtext import Floats, format_table
 from .poses import PoseFileError, Poses
@@ -75,6 +76,8 @@ def _checked(path, rotations: np.ndarray, representation: str, lines: np.ndarray
         return normalize_quaternions(path, rotations, lines, report)
     if representation == "matrix":
         return check_matrices(path, rotations, lines, report)[0]
+    if representation == "rot6d":
+        return check_rot6d(path, rotations, lines)
     return rotations
 
 
@@ -131,17 +134,40 @@ def _checked_array(path, rotations: np.ndarray, representation: str, report: Rep
         raise PoseFileError(path, f"rotation row {err.line}: {err.problem}") from None
 
 
+def _load(path, stream: BinaryIO, kind: str):
+    """``numpy.load`` of a whole ``.npz``/``.npy``, its failures (empty, truncated, pickled or not
+    numpy at all) as one :class:`PoseFileError`."""
+    try:
+        return np.load(stream, allow_pickle=False)
+    except (EOFError, ValueError, zipfile.BadZipFile, OSError) as err:
+        raise PoseFileError(path, f"not a readable {kind} file ({err})") from None
+
+
+def _array_of(path, data, name: str, kinds: str, rows: int) -> np.ndarray:
+    array = data[name]
+    if array.dtype.kind not in kinds:
+        raise PoseFileError(path, f"array {name!r} has dtype {array.dtype}, not numbers")
+    if array.ndim != 1 or len(array) != rows:
+        raise PoseFileError(path, f"array {name!r} has shape {array.shape}; {rows} rotations need ({rows},)")
+    return array
+
+
 def read_npz(path, stream: BinaryIO, chunk_lines: int, report: Report, **_) -> Iterator[Poses]:
     """Yield poses from an ``.npz`` holding ``rotation``, ``representation`` and optional times and positions."""
-    with np.load(stream, allow_pickle=False) as data:
+    with _load(path, stream, ".npz") as data:
         if "rotation" not in data or "representation" not in data:
             raise PoseFileError(path, "an .npz pose file needs arrays 'rotation' and 'representation'")
         representation = str(data["representation"])
+        if representation.partition(":")[0] not in REPRESENTATIONS:
+            raise PoseFileError(path, f"unknown representation {representation!r}: one of {', '.join(REPRESENTATIONS)}")
         degrees = bool(data["degrees"]) if "degrees" in data else False
         rotations = _checked_array(path, _float_array(path, data["rotation"], "rotation"), representation, report)
+        rows = len(rotations)
         position = _float_array(path, data["position"], "position") if "position" in data else None
-        seconds = data["timestamp"] if "timestamp" in data else None
-        ns = data["timestamp_ns"] if "timestamp_ns" in data else None
+        if position is not None and position.shape != (rows, 3):
+            raise PoseFileError(path, f"array 'position' has shape {position.shape}; {rows} rotations need ({rows}, 3)")
+        seconds = _array_of(path, data, "timestamp", "fiu", rows) if "timestamp" in data else None
+        ns = _array_of(path, data, "timestamp_ns", "iu", rows) if "timestamp_ns" in data else None
     poses = Poses(torch.from_numpy(rotations), representation, degrees=degrees,
                   positions=None if position is None else torch.from_numpy(position.astype(np.float64)),
                   timestamps=seconds, timestamps_ns=ns)
@@ -150,7 +176,10 @@ def read_npz(path, stream: BinaryIO, chunk_lines: int, report: Report, **_) -> I
 
 def read_npy(path, stream: BinaryIO, chunk_lines: int, report: Report, **_) -> Iterator[Poses]:
     """Yield rotations from an ``.npy`` array; the representation is guessed from its shape."""
-    rotations = _float_array(path, np.load(stream, allow_pickle=False), "rotation")
+    rotations = _load(path, stream, ".npy")
+    if not isinstance(rotations, np.ndarray):
+        raise PoseFileError(path, "an .npz archive, not one .npy array: name the file .npz")
+    rotations = _float_array(path, rotations, "rotation")
     representation = representation_of_shape(path, rotations.shape)
     report.note(f"{path}: an array of shape {rotations.shape} read as {representation!r}")
     rotations = _checked_array(path, rotations, representation, report)

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..registry import parse_representation
 from .checks import Report
-from .formats import EurocWriter, KittiWriter, TumWriter, read_euroc, read_kitti, read_tum
+from .formats import EurocWriter, KittiWriter, TumWriter, euroc_header_problem, read_euroc, read_kitti, read_tum
 from .plain import CsvWriter, NpyWriter, NpzWriter, read_csv, read_npy, read_npz
 from .poses import PoseFileError, Poses
 from .textparse import decimal_seconds_to_ns
@@ -47,8 +47,8 @@ def detect_format(path: PathLike, format: Optional[str] = None) -> str:
     """The format of an input file: ``format`` if given, else from its extension and content.
 
     ``.txt`` is TUM with 8 numbers a line and KITTI with 12; ``.csv`` is EuRoC when its header
-    starts ``#timestamp`` with ``p_``/``q_`` columns (or a line has 8+ numbers and no header),
-    else a plain CSV with named columns.
+    names EuRoC's columns in EuRoC's order (``timestamp``, ``p_`` x y z, ``q_`` w x y z), or a line
+    has 8+ numbers and no header; else a plain CSV with named columns.
 
     Args:
         path: the input file.
@@ -70,8 +70,7 @@ def detect_format(path: PathLike, format: Optional[str] = None) -> str:
     for line in _first_lines(path):
         text = line.decode("utf-8", "replace")
         if suffix == ".csv":
-            lowered = text.lower()
-            if lowered.startswith("#timestamp") or ("p_" in lowered and "q_" in lowered):
+            if euroc_header_problem(line) is None:  # (a header in EuRoC's order, whatever its units)
                 return "euroc"
             if not text.startswith("#") and _numbers(text.split(",")) >= 8:
                 return "euroc"
@@ -271,14 +270,19 @@ def _concatenate(chunks) -> Poses:
 def output_folder_problem(path: PathLike) -> Optional[str]:
     """Why a file cannot be written at ``path`` (its folder is missing or read-only, or ``path`` is
     a folder), or ``None``: for commands to refuse before a long run rather than fail after it."""
+    reason = _output_reason(path)
+    return None if reason is None else f"{os.fspath(path)}: {reason}"
+
+
+def _output_reason(path: PathLike) -> Optional[str]:
     path = os.fspath(path)
     directory = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(directory):
-        return f"{path}: no such folder {directory}"
+        return f"no such folder {directory}"
     if os.path.isdir(path):
-        return f"{path} is a folder"
+        return "is a folder"
     if not os.access(directory, os.W_OK):
-        return f"{path}: the folder {directory} is not writable"
+        return f"the folder {directory} is not writable"
     return None
 
 
@@ -289,6 +293,9 @@ def atomic_output(path: PathLike) -> Iterator[BinaryIO]:
     On any exception the temporary file is removed and ``path`` is left as it was.
     """
     path = os.fspath(path)
+    reason = _output_reason(path)  # (named now: else the temporary file's name, or a failed rename at the end)
+    if reason is not None:
+        raise PoseFileError(path, reason)
     directory = os.path.dirname(os.path.abspath(path))
     fd, temporary = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".tmp", dir=directory)
     try:

@@ -148,7 +148,7 @@ def parse_table(path, chunk: LineChunk, columns: Sequence[int], describe: str,
             numbers = chunk.first_line + np.arange(count, dtype=np.int64)
             return _checked_table(path, values, numbers, lambda: chunk.lines, delimiter, keep_first_text)
     lines = chunk.lines
-    if b"#" in block or any(len(line) <= 2 and not line.strip() for line in lines):
+    if b"#" in block or any(not line or line.isspace() for line in lines):  # (isspace: no copy)
         kept = [i for i, line in enumerate(lines) if _is_data(line)]
         data = [lines[i] for i in kept]
         numbers = chunk.first_line + np.asarray(kept, dtype=np.int64)
@@ -182,6 +182,8 @@ def _checked_table(path, values: np.ndarray, numbers: np.ndarray, data, delimite
 
 def _loadtxt(block: bytes, delimiter: Optional[bytes]) -> Optional[np.ndarray]:
     """``numpy.loadtxt`` of a block of data lines; None when it cannot parse them."""
+    if not block or block.isspace():  # (blank lines only: numpy warns "input contained no data")
+        return None
     try:
         return np.loadtxt(io.BytesIO(block), delimiter=None if delimiter is None else delimiter.decode(),
                           comments=None, ndmin=2, dtype=np.float64, quotechar=None)
@@ -217,15 +219,20 @@ def _diagnose(path, data: List[bytes], numbers: np.ndarray, columns: Sequence[in
                                     f"{lines_text(line)!r}", int(number)) from None
 
 
-def decimal_seconds_to_ns(fields: Sequence[bytes]) -> Optional[np.ndarray]:
-    """Exact int64 nanoseconds from decimal texts like ``b"1403715524.907143168"``.
+_MAX_WHOLE_SECONDS = (2 ** 63 - 1) // 1_000_000_000 - 1  # (int64 nanoseconds hold up to 9223372036.85 s)
 
-    Returns None unless every text is ``[+-]digits[.digits]`` with at most 10 integer and 9
-    decimal digits (then the caller keeps float seconds).
+
+def decimal_seconds_to_ns(fields: Sequence[bytes]) -> Optional[np.ndarray]:
+    """Int64 nanoseconds from decimal texts like ``b"1403715524.907143168"``: exact up to 9
+    decimals, and rounded to the nearest nanosecond (halves away from zero) beyond, which is
+    still far finer than a float64 of seconds.
+
+    Returns None unless every text is ``[+-]digits[.digits]`` with at most 10 integer digits and
+    a magnitude below 9223372035 s (int64 nanoseconds); the caller then keeps float seconds.
 
     Example:
-        >>> decimal_seconds_to_ns([b"1305031098.6659", b"-2", b"0.000000001"]).tolist()
-        [1305031098665900000, -2000000000, 1]
+        >>> decimal_seconds_to_ns([b"1305031098.6659", b"-2", b"0.000000001", b"1.0000000015"]).tolist()
+        [1305031098665900000, -2000000000, 1, 1000000002]
         >>> decimal_seconds_to_ns([b"1.5e3"]) is None
         True
     """
@@ -245,19 +252,24 @@ def decimal_seconds_to_ns(fields: Sequence[bytes]) -> Optional[np.ndarray]:
     length = width - pad.sum(axis=1)
     dot_at = np.where(dot.any(axis=1), np.argmax(dot, axis=1), length)
     start = sign.astype(np.int64)
-    if ((dot_at - start) > 10).any() or ((length - dot_at - 1) > 9).any() or ((dot_at - start) < 1).any():
+    if ((dot_at - start) > 10).any() or ((dot_at - start) < 1).any():
         return None
     whole = np.zeros(len(texts), dtype=np.int64)
     fraction = np.zeros(len(texts), dtype=np.int64)
     decimals = np.zeros(len(texts), dtype=np.int64)
+    round_up = np.zeros(len(texts), dtype=bool)
     for j in range(width):
         value = chars[:, j].astype(np.int64) - ord("0")
-        in_whole = digit[:, j] & (j < dot_at)
-        in_fraction = digit[:, j] & (j > dot_at)
+        place = j - dot_at  # 1 for the first decimal
+        in_whole = digit[:, j] & (place < 0)
+        in_fraction = digit[:, j] & (place > 0) & (place <= 9)
         whole = np.where(in_whole, whole * 10 + value, whole)
         fraction = np.where(in_fraction, fraction * 10 + value, fraction)
         decimals += in_fraction
-    ns = whole * 1_000_000_000 + fraction * 10 ** (9 - decimals)
+        round_up |= digit[:, j] & (place == 10) & (value >= 5)
+    if (whole > _MAX_WHOLE_SECONDS).any():
+        return None
+    ns = whole * 1_000_000_000 + fraction * 10 ** (9 - decimals) + round_up
     return np.where(chars[:, 0] == ord("-"), -ns, ns)
 
 
