@@ -573,3 +573,50 @@ def test_quat_distance_of_large_norms_is_right_with_or_without_a_graph_up_to_409
             evaluated = tq.quat_geodesic_distance(scale * q1, scale * q2)
         assert torch.equal(evaluated, tq.quat_geodesic_distance(leaf, scale * q2).detach())
         torch.testing.assert_close(evaluated, reference, rtol=0, atol=2e-6)
+
+
+_SCALE_INVARIANT = {
+    "quat_to_matrix": tq.quat_to_matrix,
+    "quat_rotate": lambda q: tq.quat_rotate(q, torch.tensor([1.0, -2.0, 0.5], dtype=q.dtype).expand(q.shape[:-1] + (3,))),
+    "quat_to_axis_angle": tq.quat_to_axis_angle,
+    "quat_to_euler[ZYX]": lambda q: tq.quat_to_euler(q, "ZYX"),
+    "quat_to_euler[zxz]": lambda q: tq.quat_to_euler(q, "zxz"),
+    "quat_geodesic_distance": lambda q: tq.quat_geodesic_distance(q, torch.tensor([0.9, -0.1, 0.3, 0.2], dtype=q.dtype)),
+    "quat_normalize": tq.quat_normalize,
+    "quat_slerp": lambda q: tq.quat_slerp(q, torch.tensor([0.9, -0.1, 0.3, 0.2], dtype=q.dtype), 0.3),
+    "convert[quat->rot6d]": lambda q: tq.convert(q, "quat", "rot6d"),
+}
+# the README's ranges for gradients: narrower than the values' (1e-19 to 1e19 in float32), as the
+# intermediates of some paths' gradients reach |q|^-4 (inf or NaN below) or |q|^-4 against |q|^4
+# (a term lost to underflow above: finite gradients, wrong by 20-50%)
+_GRADIENT_NORMS = {torch.float32: (1e-9, 1e9), torch.float64: (1e-75, 1e75)}
+
+
+@pytest.mark.parametrize("rows", [1, 600, 1_100, 5_000, 9_000])
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("name", sorted(_SCALE_INVARIANT))
+def test_gradients_of_non_unit_quaternions_scale_as_one_over_the_norm_in_the_documented_range(name, dtype, rows):
+    # (outside it, on some paths, the values are right and the gradients are not: see the README)
+    fn = _SCALE_INVARIANT[name]
+    q = torch.tensor([0.5, 0.5, 0.5, 0.5], dtype=dtype).repeat(rows, 1)
+    weights = None
+    gradients = []
+    for scale in (1.0, *_GRADIENT_NORMS[dtype]):
+        leaf = (q * scale).requires_grad_()
+        out = fn(leaf)
+        weights = torch.linspace(0.3, 1.7, out[0].numel(), dtype=dtype).reshape(out.shape[1:]) if weights is None else weights
+        (g,) = torch.autograd.grad((out * weights).sum(), leaf)
+        assert torch.isfinite(out).all() and torch.isfinite(g).all(), (scale, g[0])
+        gradients.append(g * scale)
+    tolerance = 1e-4 if dtype == torch.float32 else 1e-10
+    for g in gradients[1:]:
+        torch.testing.assert_close(g, gradients[0], rtol=tolerance, atol=tolerance * gradients[0].abs().max())
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_quat_inverse_gradient_is_finite_in_the_documented_range(dtype):
+    for scale in _GRADIENT_NORMS[dtype]:
+        for rows in (1, 5_000):
+            leaf = (torch.tensor([0.5, 0.5, 0.5, 0.5], dtype=dtype).repeat(rows, 1) * scale).requires_grad_()
+            (g,) = torch.autograd.grad(tq.quat_inverse(leaf).sum(), leaf)
+            assert torch.isfinite(g).all(), scale
