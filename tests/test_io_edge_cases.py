@@ -173,3 +173,23 @@ def test_poses_round_trip_through_npz_with_every_array(tmp_path):
     back = read_poses(tmp_path / "p.npz")
     assert back.timestamps_ns.tolist() == poses.timestamps_ns.tolist()
     torch.testing.assert_close(back.rotations, q, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("token", ["1_000", "\u0663", "\uff11"])  # (Python's float takes them, loadtxt does not)
+def test_a_token_only_python_reads_is_named_with_its_line(tmp_path, token):
+    src = tmp_path / "odd.tum"
+    src.write_text(f"1 1 2 3 0 0 0 1\n2 1 2 {token} 0 0 0 1\n", encoding="utf-8")
+    with pytest.raises(PoseFileError, match="not a number") as info:
+        read_poses(src)
+    assert info.value.line == 2
+
+
+@pytest.mark.parametrize("name, text", [("bom.tum", "# comment\n1 1 2 3 0 0 0 1\n"),
+                                        ("bom.csv", "timestamp,x,y,z,qw,qx,qy,qz\n1,1,2,3,1,0,0,0\n"),
+                                        ("bom_euroc.csv", "#timestamp,p_x,p_y,p_z,q_w,q_x,q_y,q_z\n1,1,2,3,1,0,0,0\n")])
+def test_a_utf8_byte_order_mark_is_skipped(tmp_path, name, text):
+    # (spreadsheets write one: the header or comment was then taken for data)
+    src = tmp_path / name
+    src.write_bytes(b"\xef\xbb\xbf" + text.encode())
+    poses = read_poses(src)
+    assert len(poses) == 1 and poses.positions.tolist() == [[1.0, 2.0, 3.0]]

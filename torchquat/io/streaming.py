@@ -36,8 +36,18 @@ _SNIFFED = (".txt", ".csv")
 PathLike = Union[str, os.PathLike]
 
 
+_BOM = b"\xef\xbb\xbf"
+
+
+def _skip_byte_order_mark(stream: BinaryIO) -> None:
+    """Step over a UTF-8 byte order mark (spreadsheets write one before a CSV header)."""
+    if stream.read(3) != _BOM:
+        stream.seek(0)
+
+
 def _first_lines(path: PathLike, limit: int = 50):
     with open(path, "rb") as stream:
+        _skip_byte_order_mark(stream)
         for _, line in zip(range(limit), stream):
             if line.strip():
                 yield line.strip()
@@ -130,6 +140,7 @@ def read_times(path: PathLike) -> Tuple[np.ndarray, Optional[np.ndarray]]:
     """Read a KITTI ``times.txt`` (one time in seconds a line): float seconds and exact ns if possible."""
     from .textparse import LineChunk, parse_table
     with open(path, "rb") as stream:
+        _skip_byte_order_mark(stream)
         table = parse_table(path, LineChunk(1, stream.readlines()), (1,), "one time in seconds",
                             keep_first_text=True)
     return table.values[:, 0].copy(), decimal_seconds_to_ns(table.first_fields)
@@ -173,6 +184,7 @@ def _chunks_and_positions(path, format: Optional[str], times: Optional[PathLike]
             raise PoseFileError(times, "a times file goes with KITTI input only")
         extra["times"], extra["times_ns"] = read_times(times)
     with open(path, "rb") as stream:
+        _skip_byte_order_mark(stream)
         for poses in READERS[name](str(path), stream, chunk_size, report, **extra):
             yield poses, stream.tell()
 

@@ -212,7 +212,9 @@ def _diagnose(path, data: List[bytes], numbers: np.ndarray, columns: Sequence[in
             raise PoseFileError(path, f"expected {width} numbers as on line {first}, found {len(fields)}: "
                                 f"{lines_text(line)!r}", int(number))
         for field in fields:
-            try:
+            try:  # (as loadtxt reads it: Python's float also takes 1_000 and non-ASCII digits)
+                if b"_" in field or not field.isascii():
+                    raise ValueError
                 float(field)
             except ValueError:
                 raise PoseFileError(path, f"not a number: {field.decode('utf-8', 'replace')!r} in "
