@@ -231,3 +231,26 @@ def test_each_cached_constant_name_has_one_value():
     assert seen, "no constant() calls found"
     clashes = {name: values for name, values in seen.items() if len(values) > 1}
     assert not clashes, clashes
+
+
+_BROADCAST_CALLS = {
+    "rotate one quaternion": lambda n: tq.quat_rotate(_ONE_Q, torch.ones(n, 3)),
+    "rotate (1, 4)": lambda n: tq.quat_rotate(_ONE_Q[None], torch.ones(n, 3)),
+    "product with one": lambda n: tq.quat_multiply(torch.ones(n, 4), _ONE_Q),
+    "distance to one": lambda n: tq.quat_geodesic_distance(torch.ones(n, 4), _ONE_Q),
+    "matrix distance to one": lambda n: tq.matrix_geodesic_distance(torch.eye(3).expand(n, 3, 3) * 1.0, torch.eye(3)),
+    "slerp with a tensor t": lambda n: tq.quat_slerp(torch.ones(n, 4), _ONE_Q, torch.full((n,), 0.3)),
+}
+_ONE_Q = torch.tensor([0.5, 0.5, 0.5, 0.5])
+
+
+@pytest.mark.parametrize("call", sorted(_BROADCAST_CALLS))
+def test_compiled_user_code_that_broadcasts_does_not_recompile_for_each_batch_size(call):
+    # a set of the batch sizes in the broadcast check specialised each size: one graph per
+    # size until fullgraph=True failed at the ninth
+    from torch._dynamo.testing import CompileCounter
+    counter = CompileCounter()  # (no dynamo reset: it would make later tests compile their kernels again)
+    fn = torch.compile(_BROADCAST_CALLS[call], fullgraph=True, backend=counter)
+    for n in range(100, 1100, 100):
+        torch.testing.assert_close(fn(n), _BROADCAST_CALLS[call](n))
+    assert counter.frame_count <= 2  # the first size, then one dynamic graph

@@ -282,8 +282,8 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
             # are computed in the input's precision (float32 at least) and returned in it.
             with torch.autocast(device, enabled=False):
                 return dispatch(*tensors, **static)
-        if (_enabled and not (compiled_from_rows and _small_cpu_batch(tensors, blocked_row_dims, compiled_from_rows))
-                and not torch.compiler.is_compiling() and not torch._C._are_functorch_transforms_active()):
+        if (_enabled and not torch.compiler.is_compiling() and not torch._C._are_functorch_transforms_active()
+                and not (compiled_from_rows and _small_cpu_batch(tensors, blocked_row_dims, compiled_from_rows))):
             # Dynamo guards on grad and inference mode and the dtype, and keeps 8 graphs per
             # function: a training loop's train / eval / inference calls, each with a last
             # short batch or a sliced input, would run past them. So each of those gets a
@@ -306,10 +306,10 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
                 with _set_stance("eager_on_recompile"):
                     output = compiled(*tensors)
                 return _first_order_only(output, tensors) if context[0] else output
-        if (blocked_row_dims is not None
+        if (blocked_row_dims is not None and not torch.compiler.is_compiling()
                 and (tensors[0].numel() >= _BLOCKED_FROM or tensors[-1].numel() >= _BLOCKED_FROM
                      or (len(tensors) > 2 and any(t.numel() >= _BLOCKED_FROM for t in tensors[1:-1])))
-                and not torch.compiler.is_compiling() and not torch._C._are_functorch_transforms_active()):
+                and not torch._C._are_functorch_transforms_active()):
             out = _run_blocked(fn, tensors, blocked_row_dims, static)
             if out is not None:
                 return out

@@ -123,7 +123,7 @@ def _products_of_triples(triples: Tensor) -> Tensor:
     multiplications: 3 us at one rotation), two multiplications above (``prod``'s backward, which
     guards against zeros, is 1.4x slower at 1,000 rows, and its forward is slower from ~10 rows).
     The same numbers either way."""
-    if triples.numel() <= 512:
+    if not torch.compiler.is_compiling() and triples.numel() <= 512:
         return triples.prod(-1)
     a, b, c = triples.unbind(-1)
     return a * b * c

@@ -124,7 +124,9 @@ def is_small(x: Tensor, row_numel: int, share: float = 1.0, gpu_share: float = 1
     too: the large-batch paths are written without matmuls.
     """
     rows = SMALL_BATCH_ROWS * share if x.is_cpu else GPU_SMALL_BATCH_ROWS * gpu_share  # (is_cpu: 0.05 us, device.type: 0.3)
-    return x.numel() <= rows * row_numel and not torch.compiler.is_compiling() and not matmul_rounds(x)
+    # (is_compiling first: a size test on a symbolic batch would guard the user's graph on it, one
+    # recompile per crossover, and make torch.export refuse a dynamic batch dimension)
+    return not torch.compiler.is_compiling() and x.numel() <= rows * row_numel and not matmul_rounds(x)
 
 
 def matmul3(a: Tensor, b: Tensor) -> Tensor:
@@ -324,7 +326,7 @@ def outer_product(a: Tensor, b: Tensor) -> Tensor:
     rows; from 256 rows each factor is spread by a 0/1 matmul first (exact for finite numbers:
     ``x * 1 + 0 * y``), then one contiguous product instead of a broadcast over dimensions of 4
     (1.6 ns an entry: 35 us against 18 us at 1,000 rows, 127 against 43 at 4,096)."""
-    if a.numel() < OUTER_PRODUCT_MATMUL_ROWS * 4 or matmul_rounds(a) or torch.compiler.is_compiling():
+    if torch.compiler.is_compiling() or a.numel() < OUTER_PRODUCT_MATMUL_ROWS * 4 or matmul_rounds(a):
         return (a.unsqueeze(-1) * b.unsqueeze(-2)).flatten(-2)
     return (a @ constant("outer_select_a", _OUTER_SELECT[0], a)) * (b @ constant("outer_select_b", _OUTER_SELECT[1], b))
 

@@ -58,10 +58,14 @@ def check_broadcast(fn: str, names: Sequence[str], tensors: Sequence[Tensor],
     batches = [tuple(t.shape[: t.dim() - n]) for t, n in zip(tensors, trailing)]
     ndim = max(len(b) for b in batches)
     for axis in range(1, ndim + 1):
-        sizes = {b[-axis] for b in batches if len(b) >= axis and b[-axis] != 1}
-        if len(sizes) > 1:
-            got = " and ".join(str(b) for b in batches)
-            raise ShapeError(f"{fn}: expected {' and '.join(names)} with broadcastable batch shapes, got {got}")
+        size = None  # (compared, never hashed: a set of symbolic sizes made torch.compile specialise
+        # every batch size, recompiling until fullgraph=True failed, and torch.export refuse them)
+        for b in batches:
+            if len(b) >= axis and b[-axis] != 1:
+                if size is not None and b[-axis] != size:
+                    got = " and ".join(str(b) for b in batches)
+                    raise ShapeError(f"{fn}: expected {' and '.join(names)} with broadcastable batch shapes, got {got}")
+                size = b[-axis]
 
 
 def prepare_pair(fn: str, names: Sequence[str], a, b, trailing_a: Tuple[int, ...],

@@ -149,7 +149,8 @@ def convert(x: Tensor, src: str, dst: str, *, convention: Optional[str] = None, 
     src_rep, src_conv = parse_representation(src, "convert", convention)
     dst_rep, dst_conv = parse_representation(dst, "convert", convention)
     shape = src_rep.shape
-    if src_rep.name == "rot9d" and isinstance(x, Tensor) and x.dim() >= 2 and tuple(x.shape[-2:]) == (3, 3):
+    # (the last dimension first: comparing a symbolic batch size with 3 would guard it under export)
+    if src_rep.name == "rot9d" and isinstance(x, Tensor) and x.dim() >= 2 and x.shape[-1] == 3 and x.shape[-2] == 3:
         x = x.flatten(-2)
     try:
         x, dtype = prepare(x, "convert", "x", shape)
