@@ -254,3 +254,35 @@ def test_compiled_user_code_that_broadcasts_does_not_recompile_for_each_batch_si
     for n in range(100, 1100, 100):
         torch.testing.assert_close(fn(n), _BROADCAST_CALLS[call](n))
     assert counter.frame_count <= 2  # the first size, then one dynamic graph
+
+
+# one entry per kernel family (every table entry: 118 exports, about 40 s)
+_EXPORTED = ["quat_to_matrix", "matrix_to_quat", "quat_to_euler[zxz]", "quat_to_euler[YXZ]", "matrix_to_euler[xzy]",
+             "euler_to_quat[ZYZ]", "euler_to_matrix[XYZ]", "quat_to_axis_angle", "axis_angle_to_quat",
+             "axis_angle_to_matrix", "matrix_to_axis_angle", "rot6d_to_matrix", "rot9d_to_matrix",
+             "quat_geodesic_distance", "matrix_geodesic_distance", "quat_rotate", "quat_multiply", "quat_slerp"]
+
+
+@pytest.mark.parametrize("name", _EXPORTED)
+def test_torch_export_with_a_dynamic_batch_runs_at_another_size(name):
+    fn, generic, _ = ALL[name]
+    inputs = generic()
+    module = _Unary(fn) if len(inputs) == 1 else _Binary(fn)
+    batch = torch.export.Dim("batch", min=2, max=100_000)
+    program = torch.export.export(module, tuple(inputs), dynamic_shapes=tuple({0: batch} for _ in inputs))
+    other = tuple(torch.cat([x, x[:3]]) for x in inputs)
+    torch.testing.assert_close(program.module()(*other), fn(*other), equal_nan=True)
+
+
+class _Unary(torch.nn.Module):
+    def __init__(self, fn):
+        super().__init__()
+        self.fn = fn
+
+    def forward(self, x):
+        return self.fn(x)
+
+
+class _Binary(_Unary):
+    def forward(self, a, b):
+        return self.fn(a, b)
