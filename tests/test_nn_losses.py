@@ -192,3 +192,20 @@ def test_zero_quaternion_gives_nan_loss_not_a_crash():
     got = QuatDistanceLoss("none")(q, torch.tensor([1.0, 0.0, 0.0, 0.0]))
     assert torch.isnan(got[0]) and got[1] == 0
     assert torch.isnan(GeodesicLoss("quat", "none")(q, q)[0])
+
+
+def test_quat_distance_loss_is_never_negative_and_keeps_small_losses():
+    # 1 - |<p, q>| was -2.4e-7 for equal float32 inputs, and rounded small losses to multiples of 6e-8
+    q = torchquat.random_quat(1000, generator=torch.Generator().manual_seed(7))
+    assert QuatDistanceLoss("none")(q, q).min() >= 0.0
+    assert QuatDistanceLoss("none")(q, -q).min() >= 0.0
+    angles = torch.logspace(-4, -2, 50, dtype=torch.float64)
+    axis_angle = angles[:, None] * torch.tensor([0.6, 0.0, 0.8], dtype=torch.float64)
+    q1 = torchquat.random_quat(50, generator=torch.Generator().manual_seed(8), dtype=torch.float64)
+    q2 = torchquat.quat_multiply(q1, torchquat.axis_angle_to_quat(axis_angle))
+    a, b = q1.float(), q2.float()
+    # 1 - cos(angle / 2) of the float32 inputs' own angle (their rounding moves it), in float64
+    expected = 2.0 * torch.sin(torchquat.quat_geodesic_distance(a.double(), b.double()) / 4) ** 2
+    got = QuatDistanceLoss("none")(a, b).double()
+    # (normalising each float32 input rounds its components by ~6e-8: a 1e-4 rad loss keeps 2 digits)
+    assert ((got - expected).abs() / expected).max() < 2e-2

@@ -6,6 +6,7 @@ input dtype. Gradients are finite everywhere, including at zero
 loss and at rotations 180 degrees apart.
 """
 
+import torch
 from torch import Tensor, nn
 
 from .._math import constant
@@ -76,7 +77,10 @@ class QuatDistanceLoss(nn.Module):
     """``1 - |<q1, q2>|`` of the normalised quaternions (Huynh 2009, metric 4), in ``[0, 1]``.
 
     Sign-invariant, cheap (no trigonometry) and equal to ``1 - cos(angle / 2)``, a monotone
-    function of the geodesic angle. Quaternions need not be unit; zero quaternions give NaN.
+    function of the geodesic angle. Computed as ``min(|p - q|^2, |p + q|^2) / 2`` of the unit
+    ``p``, ``q`` (the same number for unit quaternions): never below 0, and small losses keep
+    their digits where ``1 - |<p, q>|`` cancels. Quaternions need not be unit; zero quaternions
+    give NaN.
 
     Args:
         reduction: ``'none' | 'mean' | 'sum'`` (default ``'mean'``).
@@ -101,8 +105,12 @@ class QuatDistanceLoss(nn.Module):
 
     def _loss(self, input: Tensor, target: Tensor) -> Tensor:
         a, b, dtype = _prepare_pair("QuatDistanceLoss", input, target, (4,))
-        dot = (normalized(a) * normalized(b)).sum(-1).abs()
-        loss = constant("one", 1.0, dot) - dot  # (a Python 1.0 is wrapped into a tensor on every call)
+        p, q = normalized(a), normalized(b)
+        # 1 - |<p, q>| = min(|p - q|^2, |p + q|^2) / 2 for unit p, q: never below 0 (1 - |dot| was
+        # -2e-7 for equal float32 inputs), and small losses keep their digits (1 - |dot| rounds
+        # them to multiples of 6e-8 in float32)
+        chords = torch.stack((p - q, p + q), dim=-2)
+        loss = (chords * chords).sum(-1).amin(-1) * constant("half", 0.5, chords)
         return restore(reduce(loss, self.reduction), dtype)
 
     def extra_repr(self) -> str:
