@@ -221,3 +221,41 @@ def test_rot9d_gradient_at_a_zero_matrix_is_finite():
         assert torch.isfinite(g).all() and g.abs().max() <= 4 * G.abs().max()
         _, tangent = torch.func.jvp(tq.rot9d_to_matrix, (M.detach(),), (torch.ones_like(M),))
         assert torch.isfinite(tangent).all()
+
+
+_PROPER = [a + b + a for axes in ("XYZ", "xyz") for a in axes for b in axes if a != b]  # the 12 proper-Euler conventions
+
+
+@pytest.mark.parametrize("convention", _PROPER)
+@pytest.mark.parametrize("source", ["quat", "matrix"])
+def test_second_derivatives_at_a_proper_euler_lock_are_finite_on_every_path(convention, source):
+    # at middle angle 0 (the identity is one such rotation) vector_norm's second derivative made
+    # the small batches' double backward NaN, while large batches gave finite numbers
+    q = tq.random_quat(1100, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
+    q[0] = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=torch.float64)
+    q[1] = tq.euler_to_quat(torch.tensor([0.3, 0.0, 0.0], dtype=torch.float64), convention)
+    x = q if source == "quat" else tq.quat_to_matrix(q)
+    fn = (lambda y: tq.quat_to_euler(y, convention)) if source == "quat" else (lambda y: tq.matrix_to_euler(y, convention))
+    rows = []
+    for batch in (x[:2], x):
+        leaf = batch.clone().requires_grad_()
+        (g,) = torch.autograd.grad(fn(leaf).sum(), leaf, create_graph=True)
+        (h,) = torch.autograd.grad((g * torch.linspace(0.5, 1.5, g[0].numel(), dtype=g.dtype).reshape(g.shape[1:])).sum(), leaf)
+        assert torch.isfinite(g).all() and torch.isfinite(h).all()
+        rows.append(h[:2])
+    torch.testing.assert_close(rows[0], rows[1], rtol=1e-9, atol=1e-9)
+
+
+def test_second_derivative_of_the_quat_distance_at_zero_is_the_same_on_every_path():
+    # the small batches' chord norms had a NaN second derivative at distance 0; large batches gave 0
+    q0 = tq.random_quat(1, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
+    results = []
+    for rows in (1, 600, 5_000, 20_000):
+        target = q0.expand(rows, 4).clone()
+        leaf = target.clone().requires_grad_()
+        (g,) = torch.autograd.grad((tq.quat_geodesic_distance(target, leaf) ** 2).sum(), leaf, create_graph=True)
+        (h,) = torch.autograd.grad(g[:, 1].sum(), leaf)
+        assert torch.isfinite(h).all()
+        results.append(h[0])
+    for h in results[1:]:
+        torch.testing.assert_close(h, results[0], rtol=0, atol=1e-12)

@@ -28,7 +28,7 @@ from torch import Tensor
 from ._euler_forms import forms_tables
 from . import _closed_form as closed_form
 from ._closed_form import Rule
-from ._math import constant, outer_product, zero_to_inf
+from ._math import constant, norm_twice_differentiable, outer_product, zero_to_inf
 from .conventions import EULER_CONVENTIONS, EulerConvention
 
 # (form, sign) of each pair's y and x; forms are numbered as in _euler_forms
@@ -75,10 +75,17 @@ def matrix_layout(R: Tensor, conv: EulerConvention) -> Tensor:
     return forms.view(R.shape[:-2] + (4, 2))
 
 
-def lock(forms: Tensor, eps: float):
+def lock(forms: Tensor, eps: float, differentiable_twice: bool = False):
     """``2h`` (the middle angle's sine) and the gimbal-lock mask ``2h <= sin(eps)``: the test of
-    both the angles and :func:`euler_gimbal_lock`."""
-    two_h = torch.linalg.vector_norm(forms[..., 0, :], dim=-1)  # |t1's pair|; its gradient is 0 at h = 0
+    both the angles and :func:`euler_gimbal_lock`. ``differentiable_twice``: ``2h`` with
+    derivatives of every order 0 at ``h = 0`` (``vector_norm``'s second derivative there is NaN:
+    double backward at a proper-Euler lock with middle angle 0, the identity among them, was NaN on
+    small batches and 0 on large ones); the same numbers."""
+    pair = forms[..., 0, :]
+    if differentiable_twice:
+        two_h = norm_twice_differentiable(pair)
+    else:
+        two_h = torch.linalg.vector_norm(pair, dim=-1)  # |t1's pair|; its gradient is 0 at h = 0
     threshold = math.sin(eps)
     if not torch.compiler.is_compiling():  # (under compile eps may be symbolic: no cache key)
         threshold = constant(f"sin_eps_{eps!r}", threshold, forms)
@@ -90,7 +97,7 @@ _FLIPS = {1: ("sign1", 1.0, "sign-1", -1.0), -1: ("sign-1", -1.0, "sign1", 1.0)}
 
 def _angles(forms: Tensor, conv: EulerConvention, eps: float, for_autograd: bool = True):
     """The angles, and what the closed-form backward needs."""
-    two_h, locked = lock(forms, eps)
+    two_h, locked = lock(forms, eps, differentiable_twice=for_autograd)
     y, x = forms.unbind(-1)
     z = y[..., 3]
     zero = constant("zero", 0.0, forms)  # (a tensor: a Python 0 is wrapped into one on every call, 1 us)

@@ -6,7 +6,7 @@ from torch import Tensor
 from . import _closed_form as closed_form
 from ._closed_form import Rule
 from ._dispatch import kernel
-from ._math import constant, is_small, safe_sqrt, sum_of_products, sum_of_squares, zero_to_inf
+from ._math import constant, is_small, norm_twice_differentiable, safe_sqrt, sum_of_products, sum_of_squares, zero_to_inf
 from ._planes import columns, planar, plane_buffer, rows, slot
 from ._validation import prepare_pair, restore
 
@@ -15,8 +15,11 @@ __all__ = ["quat_geodesic_distance", "matrix_geodesic_distance"]
 _QUAT_PLANAR_SHARE, _MATRIX_PLANAR_SHARE = 0.5, 0.25
 
 
-def _quat_distance_parts(q1: Tensor, q2: Tensor):
-    """The distance, and what the closed-form backward needs."""
+def _quat_distance_parts(q1: Tensor, q2: Tensor, differentiable_twice: bool = False):
+    """The distance, and what the closed-form backward needs. ``differentiable_twice``: chord
+    lengths whose derivatives of every order are 0 at a zero chord (``vector_norm``'s second
+    derivative there is NaN), the same numbers: for the plain forward, which serves double
+    backward and ``torch.func``."""
     # For unit p, q at half-angle a apart (<p, q> = cos a): |p - q| = 2 sin(a/2) and
     # |p + q| = 2 cos(a/2), so the angle 2a is 4 atan2(|p - q|, |p + q|); taking the smaller of
     # the two norms over the larger picks the nearer of q and -q (sign invariance). Both norms
@@ -27,13 +30,13 @@ def _quat_distance_parts(q1: Tensor, q2: Tensor):
     p = q1 / r1  # 0 / 0 = NaN for a zero quaternion
     q = q2 / r2
     chords = torch.stack((p - q, p + q), dim=-2)
-    lengths = torch.linalg.vector_norm(chords, dim=-1)
+    lengths = norm_twice_differentiable(chords) if differentiable_twice else torch.linalg.vector_norm(chords, dim=-1)
     shorter, longer = lengths.amin(-1), lengths.amax(-1)  # (torch 2.11's aminmax has no derivative)
     return torch.atan2(shorter, longer) * constant("four", 4.0, shorter), (p, q, r1, r2, chords, lengths)
 
 
 def _quat_distance_small(q1: Tensor, q2: Tensor) -> Tensor:
-    return _quat_distance_parts(q1, q2)[0]
+    return _quat_distance_parts(q1, q2, differentiable_twice=True)[0]
 
 
 def _tangent(g: Tensor, p: Tensor, r: Tensor) -> Tensor:
