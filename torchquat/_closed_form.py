@@ -52,9 +52,12 @@ def jacobian_rule(plain: Callable, with_jacobian: Callable, values: Optional[Cal
 _any_autocast = getattr(torch._C, "_is_any_autocast_enabled", lambda: True)
 
 
-def autocast_enabled(device_type: str) -> bool:
-    """Whether autocast is on for ``device_type`` (the common answer, no, in one C call)."""
-    return _any_autocast() and torch.is_autocast_enabled(device_type)
+def autocast_device(x: Tensor) -> Optional[str]:
+    """``x``'s device type if autocast is on for it, else None: the common answer, no, in one C
+    call (``x.device.type`` alone costs 0.3 us, a tenth of an operation at one rotation)."""
+    if _any_autocast() and torch.is_autocast_enabled(device := x.device.type):
+        return device
+    return None
 
 
 _legacy_batched = getattr(torch._C._functorch, "is_legacy_batchedtensor", lambda x: False)
@@ -85,9 +88,9 @@ class _ClosedForm(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad: Tensor):
-        if autocast_enabled(grad.device.type):  # (a backward run inside an autocast region: the
-            # forward ran in the inputs' precision, and so does its gradient, matmuls included)
-            with torch.autocast(grad.device.type, enabled=False):
+        if (device := autocast_device(grad)) is not None:  # (a backward run inside an autocast region:
+            # the forward ran in the inputs' precision, and so does its gradient, matmuls included)
+            with torch.autocast(device, enabled=False):
                 return _ClosedForm.backward(ctx, grad)
         tensors = ctx.saved_tensors
         inputs, saved = tensors[:ctx.n_inputs], tensors[ctx.n_inputs:]

@@ -6,7 +6,7 @@ import torch
 from torch import Tensor
 
 from . import _closed_form as closed_form
-from ._closed_form import Rule, _transformed, autocast_enabled
+from ._closed_form import Rule, _transformed, autocast_device
 from ._dispatch import kernel
 from ._math import constant, is_small, matmul3, sum_of_squares
 from ._planes import columns, plane_buffer, rows, slot
@@ -215,8 +215,8 @@ class _SpecialProcrustes(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad_R, _gu, _gs, _gv):
-        if autocast_enabled(grad_R.device.type):  # (a backward inside an autocast region: in M's precision)
-            with torch.autocast(grad_R.device.type, enabled=False):
+        if (device := autocast_device(grad_R)) is not None:  # (a backward inside an autocast region: in M's precision)
+            with torch.autocast(device, enabled=False):
                 return _SpecialProcrustes.backward(ctx, grad_R, _gu, _gs, _gv)
         U, S, Vh, M = ctx.saved_tensors
         if _differentiated_again():
