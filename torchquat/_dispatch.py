@@ -31,6 +31,8 @@ _past_limit = set()  # compiled functions that reached dynamo's recompile limit
 _set_stance = getattr(torch.compiler, "set_stance", None)  # (torch 2.6 and later)
 _backend = "inductor"  # tests swap in "eager" to check tracing and caching without compiling C++
 # one flag read instead of a device lookup and a per-device query (0.5 us a call at one rotation)
+_any_autocast = _closed_form._any_autocast
+_is_compiling = torch.compiler.is_compiling  # (one lookup a call fewer: 0.03 us on every kernel call)
 
 
 def use_compiled_kernels(enabled: bool = True) -> None:
@@ -162,9 +164,6 @@ def _small_cpu_batch(tensors: Tuple[Tensor, ...], row_dims: Tuple[int, ...], row
     return True
 
 
-_any_autocast = _closed_form._any_autocast
-_is_compiling = torch.compiler.is_compiling  # (one lookup a call fewer: 0.03 us on every kernel call)
-
 _SECOND_ORDER = ("torchquat's compiled kernels are first-order: a derivative of their gradient is not available. "
                  "Switch them off (torchquat.use_compiled_kernels(False)) for double backward and Hessians; "
                  "torch.func transforms run the eager kernels")
@@ -280,12 +279,12 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
 
     @functools.wraps(fn)
     def dispatch(*tensors, **static):
-        if _any_autocast() and torch.is_autocast_enabled(device := tensors[0].device.type):  # (inline: 0.1 us a call)
+        if _any_autocast() and torch.is_autocast_enabled(device := tensors[0].device.type):
             # Autocast would round the kernels' small matmuls to bfloat16/float16; rotations
             # are computed in the input's precision (float32 at least) and returned in it.
             with torch.autocast(device, enabled=False):
                 return dispatch(*tensors, **static)
-        if (_enabled and not torch.compiler.is_compiling() and not torch._C._are_functorch_transforms_active()
+        if (_enabled and not _is_compiling() and not torch._C._are_functorch_transforms_active()
                 and not (compiled_from_rows and _small_cpu_batch(tensors, blocked_row_dims, compiled_from_rows))):
             # Dynamo guards on grad and inference mode and the dtype, and keeps 8 graphs per
             # function: a training loop's train / eval / inference calls, each with a last
