@@ -193,3 +193,13 @@ def test_a_utf8_byte_order_mark_is_skipped(tmp_path, name, text):
     src.write_bytes(b"\xef\xbb\xbf" + text.encode())
     poses = read_poses(src)
     assert len(poses) == 1 and poses.positions.tolist() == [[1.0, 2.0, 3.0]]
+
+
+def test_kitti_to_kitti_says_nothing_about_lost_timestamps_and_tum_to_kitti_does(tmp_path):
+    from torchquat.io import Report
+    kitti = tmp_path / "in.kitti"
+    kitti.write_text("1 0 0 1 0 1 0 2 0 0 1 3\n" * 3)
+    for src, lost in ((kitti, False), (torchquat_sample(), True)):
+        report = Report()
+        convert_file(src, tmp_path / "out.kitti", report=report)
+        assert any("timestamps are not written" in line for line in report.lines()) == lost

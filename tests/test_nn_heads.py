@@ -188,3 +188,9 @@ def test_tiny_linear_outputs_still_give_rotations(representation, dtype, scale):
     tolerance = 2e-3 if dtype == torch.float16 else 1e-6
     torch.testing.assert_close(R @ R.mT, eye, rtol=0, atol=tolerance)
     assert (torch.linalg.det(R) > 0).all()
+
+
+@pytest.mark.parametrize("dtype", [torch.int64, torch.bool])
+def test_head_rejects_integer_features_with_a_type_error(dtype):
+    with pytest.raises(TypeError, match=f"RotationHead: expected features to be a floating-point tensor, got dtype {dtype}"):
+        make_head("rot6d")(torch.ones(5, IN, dtype=dtype))

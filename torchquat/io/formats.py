@@ -217,7 +217,8 @@ class KittiWriter(_TextWriter):
     representation = "matrix"
 
     def fields(self, poses):
-        if poses.timestamps is not None:
+        if poses.timestamps is not None and not np.array_equal(  # (times that are the row index lose nothing:
+                poses.timestamps, np.arange(self.rows, self.rows + len(poses))):  # KITTI input without --times)
             self.report.note("KITTI files hold no timestamps: the input's timestamps are not written")
         pose = np.concatenate([self.rotations(poses), positions_of(poses, self.dtype, self.report)[:, :, None]],
                               axis=2)

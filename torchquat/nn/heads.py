@@ -106,6 +106,8 @@ class RotationHead(nn.Module):
         if not isinstance(features, Tensor) or features.dim() < 1 or features.shape[-1] != self.in_features:
             got = tuple(features.shape) if isinstance(features, Tensor) else type(features).__name__
             raise ShapeError(f"RotationHead: expected features of shape (..., {self.in_features}), got {got}")
+        if not features.dtype.is_floating_point:  # (as every function: not PyTorch's "mat1 and mat2" dtype error)
+            raise TypeError(f"RotationHead: expected features to be a floating-point tensor, got dtype {features.dtype}")
         y = self.linear(features)
         return self._to_rotation(y)
 
