@@ -15,7 +15,7 @@ import torch
 from .checks import Report, check_matrices, normalize_quaternions
 from .numtext import Floats, Integers, Nanoseconds, format_floats, format_integers, format_nanoseconds, format_table
 from .poses import PoseFileError, Poses
-from .textparse import decimal_seconds_to_ns, iter_line_chunks, parse_table
+from .textparse import decimal_seconds_to_ns, iter_line_chunks, parse_table, read_header
 
 __all__ = ["read_tum", "read_kitti", "read_euroc", "TumWriter", "KittiWriter", "EurocWriter",
            "time_fields", "time_column", "EUROC_HEADER", "euroc_header_problem"]
@@ -44,13 +44,8 @@ def _check_euroc_header(path, stream: BinaryIO) -> None:
     """Raise if the first non-blank line is a header that does not name EuRoC's columns."""
     if not stream.seekable():
         return
-    start, number = stream.tell(), 0
-    for line in stream:
-        number += 1
-        if line.strip():
-            break
-    else:
-        line = b""
+    start = stream.tell()
+    line, number = read_header(stream)
     stream.seek(start)
     first = line.lstrip()[:1]
     if first and not (first.isdigit() or first in b"+-."):  # a header (data lines start with a number)
