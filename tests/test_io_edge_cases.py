@@ -203,3 +203,76 @@ def test_kitti_to_kitti_says_nothing_about_lost_timestamps_and_tum_to_kitti_does
         report = Report()
         convert_file(src, tmp_path / "out.kitti", report=report)
         assert any("timestamps are not written" in line for line in report.lines()) == lost
+
+
+@pytest.mark.parametrize("preamble", ["# exported by a tool, version 2\n# frame: world\n", "\n# one comment\n\n"])
+@pytest.mark.parametrize("hash_header", [False, True])
+def test_comment_lines_before_a_csv_header_are_skipped(tmp_path, preamble, hash_header):
+    # the first comment was taken as the header ("unrecognised CSV header 'exported by a tool'")
+    header = ("#" if hash_header else "") + "timestamp,x,y,z,qx,qy,qz,qw\n"
+    src = _write(tmp_path / "poses.csv", preamble + header + "1.5,1,2,3,0.6,0,0,0.8\n2,1,2,3,0,0,0,1\n")
+    assert detect_format(src) == "csv"
+    poses = read_poses(src)
+    assert poses.timestamps.tolist() == [1.5, 2.0]
+    torch.testing.assert_close(poses.to("quat").rotations,
+                               torch.tensor([[0.8, 0.6, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]], dtype=torch.float64))
+
+
+def test_comment_lines_before_a_euroc_header_are_skipped(tmp_path):
+    header = "#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w [],q_RS_x [],q_RS_y [],q_RS_z []\n"
+    data = "1403715524907143168,1,2,3,0.8,0.6,0,0\n"
+    src = _write(tmp_path / "gt.csv", "# recorded in the machine hall\n" + header + data)
+    assert detect_format(src) == "euroc"
+    poses = read_poses(src)
+    assert poses.timestamps_ns.tolist() == [1403715524907143168]
+    torch.testing.assert_close(poses.rotations, torch.tensor([[0.8, 0.6, 0.0, 0.0]], dtype=torch.float64))
+
+
+def test_a_euroc_header_without_hash_is_stepped_over(tmp_path):
+    src = _write(tmp_path / "gt.csv", "timestamp,p_x,p_y,p_z,q_w,q_x,q_y,q_z\n1403715524907143168,1,2,3,0.8,0.6,0,0\n")
+    assert detect_format(src) == "euroc"
+    assert read_poses(src).timestamps_ns.tolist() == [1403715524907143168]  # (was "not a number" on line 1)
+
+
+def test_csv_errors_name_the_header_line_and_a_missing_header(tmp_path):
+    src = _write(tmp_path / "a.csv", "# about\n\ntimestamp,x,y,z,qw,qx,qy,qzz\n1,1,2,3,1,0,0,0\n")
+    with pytest.raises(PoseFileError, match="unrecognised CSV header") as info:
+        read_poses(src)
+    assert info.value.line == 3
+    src = _write(tmp_path / "b.csv", "\n0.5,1,2,3\n")
+    with pytest.raises(PoseFileError, match="needs a header naming its columns") as info:
+        read_poses(src, format="csv")
+    assert info.value.line == 2
+    src = _write(tmp_path / "c.csv", "# c\ntimestamp,qw,qx,qy,qz\n0.5,1,0,0,0\n0.6,1,0,0,zz\n")
+    with pytest.raises(PoseFileError, match="zz") as info:
+        read_poses(src)
+    assert info.value.line == 4
+
+
+@pytest.mark.parametrize("name, fmt", [("out.npz", "tum"), ("out.npy", "kitti"), ("out.csv", "tum"),
+                                       ("out.txt", "euroc"), ("out.kitti", "tum"), ("out.tum", "euroc")])
+def test_pose_formats_are_not_written_under_another_formats_extension(tmp_path, name, fmt):
+    # `--to tum` into out.npz wrote TUM text that every reader took for a NumPy archive
+    poses = Poses(torch.tensor([[1.0, 0.0, 0.0, 0.0]], dtype=torch.float64), "quat", timestamps=np.array([1.0]))
+    with pytest.raises(PoseFileError, match="would be read back as"):
+        write_poses(tmp_path / name, poses, format=fmt)
+    src = _write(tmp_path / "in.tum", "1 0 0 0 0 0 0 1\n")
+    assert cli.main(["convert", str(src), str(tmp_path / name), "--to", fmt]) == 2
+    assert not (tmp_path / name).exists()
+
+
+def test_pose_formats_under_their_own_or_unknown_extensions_round_trip(tmp_path):
+    poses = Poses(torch.tensor([[0.8, 0.6, 0.0, 0.0]], dtype=torch.float64), "quat", timestamps=np.array([1.0]))
+    for name, fmt in [("a.txt", "tum"), ("b.txt", "kitti"), ("c.csv", "euroc"), ("d.dat", "tum")]:
+        write_poses(tmp_path / name, poses, format=fmt)
+        back = read_poses(tmp_path / name, format=fmt)
+        torch.testing.assert_close(back.to("quat").rotations, poses.rotations)
+
+
+def test_python_api_messages_do_not_speak_only_of_command_line_options(tmp_path):
+    poses = Poses(torch.tensor([[1.0, 0.0, 0.0, 0.0]], dtype=torch.float64), "quat")
+    with pytest.raises(PoseFileError, match="written to a plain file: its name must end in") as info:
+        write_poses(tmp_path / "x.tum", poses, representation="euler:ZYX")
+    assert "--to" not in str(info.value)
+    with pytest.raises(PoseFileError, match="format= in Python"):
+        read_poses(_write(tmp_path / "x.dat", "1 0 0 0 0 0 0 1\n"))

@@ -40,19 +40,19 @@ def euroc_header_problem(line: bytes) -> Optional[str]:
     return None
 
 
-def _check_euroc_header(path, stream: BinaryIO) -> None:
-    """Raise if the first non-blank line is a header that does not name EuRoC's columns."""
+def _skip_euroc_header(path, stream: BinaryIO) -> int:
+    """Raise if the file has a header (see :func:`textparse.read_header`) that does not name EuRoC's
+    columns; else step over it (``#`` or not) and return the number of the line the stream is at."""
     if not stream.seekable():
-        return
-    start = stream.tell()
-    line, number = read_header(stream)
-    stream.seek(start)
-    first = line.lstrip()[:1]
-    if first and not (first.isdigit() or first in b"+-."):  # a header (data lines start with a number)
+        return 1
+    line, number, next_line = read_header(stream)
+    if line:  # (a header: named columns)
         problem = euroc_header_problem(line)
         if problem is not None:
             raise PoseFileError(path, f"not EuRoC ground truth: {problem}; for other columns use a plain CSV "
-                                "(--from csv) with the names it documents", number)
+                                "(--from csv on the command line, format=\"csv\" in Python) with the names "
+                                "it documents", number)
+    return next_line
 
 
 def read_tum(path, stream: BinaryIO, chunk_lines: int, report: Report, **_) -> Iterator[Poses]:
@@ -97,8 +97,8 @@ def read_kitti(path, stream: BinaryIO, chunk_lines: int, report: Report,
 
 def read_euroc(path, stream: BinaryIO, chunk_lines: int, report: Report, **_) -> Iterator[Poses]:
     """Yield EuRoC ground-truth poses (rotations as ``"quat"``, times exact in nanoseconds)."""
-    _check_euroc_header(path, stream)
-    for chunk in iter_line_chunks(stream, chunk_lines):
+    first_line = _skip_euroc_header(path, stream)
+    for chunk in iter_line_chunks(stream, chunk_lines, first_line=first_line):
         table = parse_table(path, chunk, range(8, 64), "EuRoC: timestamp [ns], p_x, p_y, p_z, q_w, q_x, q_y, q_z, ...",
                             delimiter=b",", keep_first_text=True)
         if len(table.values) == 0:

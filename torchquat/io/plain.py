@@ -53,8 +53,8 @@ def rotation_columns(representation: str, degrees: bool = False) -> List[str]:
     return _FIXED["matrix" if name == "rot9d" else name]
 
 
-def parse_columns(path, names: List[str]) -> Tuple[bool, bool, str, bool]:
-    """From a header: (has timestamp, has positions, representation, degrees)."""
+def parse_columns(path, names: List[str], line: int = 1) -> Tuple[bool, bool, str, bool]:
+    """From a header (at ``line``, for errors): (has timestamp, has positions, representation, degrees)."""
     rest = list(names)
     has_time = bool(rest) and rest[0] == "timestamp"
     rest = rest[1:] if has_time else rest
@@ -68,7 +68,7 @@ def parse_columns(path, names: List[str]) -> Tuple[bool, bool, str, bool]:
             and [m.group(2) for m in found] == ["1", "2", "3"] and len({m.group(3) for m in found}) == 1:
         return has_time, has_position, f"euler:{found[0].group(1)}", found[0].group(3) is not None
     raise PoseFileError(path, f"unrecognised CSV header {','.join(names)!r}: expected [timestamp,][x,y,z,] then "
-                        "qw,qx,qy,qz | qx,qy,qz,qw | r00..r22 | SEQ_1,SEQ_2,SEQ_3[_deg] | ax,ay,az | r6_1..r6_6", 1)
+                        "qw,qx,qy,qz | qx,qy,qz,qw | r00..r22 | SEQ_1,SEQ_2,SEQ_3[_deg] | ax,ay,az | r6_1..r6_6", line)
 
 
 def _checked(path, rotations: np.ndarray, representation: str, lines: np.ndarray, report: Report) -> np.ndarray:
@@ -83,12 +83,15 @@ def _checked(path, rotations: np.ndarray, representation: str, lines: np.ndarray
 
 def read_csv(path, stream: BinaryIO, chunk_lines: int, report: Report, **_) -> Iterator[Poses]:
     """Yield poses from a plain CSV file whose header names the columns."""
-    header, header_lines = read_header(stream)
-    names = [n.strip() for n in header.decode("utf-8", "replace").lstrip("#").strip().split(",")]
-    has_time, has_position, representation, degrees = parse_columns(path, names)
+    header, header_line, next_line = read_header(stream)
+    if not header:
+        raise PoseFileError(path, "a plain CSV needs a header naming its columns (e.g. timestamp,x,y,z,qw,qx,qy,qz), "
+                            "on its first line or as the # line before the data", next_line)
+    names = [n.strip() for n in header.decode("utf-8", "replace").strip().lstrip("#").strip().split(",")]
+    has_time, has_position, representation, degrees = parse_columns(path, names, header_line)
     shape = REPRESENTATIONS[representation.partition(":")[0]].shape
     start = int(has_time) + 3 * has_position
-    for chunk in iter_line_chunks(stream, chunk_lines, first_line=header_lines + 1):
+    for chunk in iter_line_chunks(stream, chunk_lines, first_line=next_line):
         table = parse_table(path, chunk, (len(names),), f"CSV columns {','.join(names)}", delimiter=b",",
                             keep_first_text=has_time)
         if len(table.values) == 0:

@@ -17,7 +17,7 @@ from .checks import Report
 from .formats import EurocWriter, KittiWriter, TumWriter, euroc_header_problem, read_euroc, read_kitti, read_tum
 from .plain import CsvWriter, NpyWriter, NpzWriter, read_csv, read_npy, read_npz
 from .poses import PoseFileError, Poses
-from .textparse import decimal_seconds_to_ns
+from .textparse import decimal_seconds_to_ns, read_header
 
 __all__ = ["read_poses", "iter_poses", "write_poses", "convert_file", "detect_format", "output_plan",
            "atomic_output", "output_folder_problem", "read_times", "FORMATS", "POSE_FORMATS", "PLAIN_TARGETS", "DEFAULT_CHUNK_SIZE"]
@@ -33,6 +33,11 @@ POSE_FORMATS = ("tum", "kitti", "euroc")
 PLAIN_TARGETS = ("quat", "quat_xyzw", "matrix", "euler:SEQ", "axis_angle", "rot6d")
 _BY_EXTENSION = {".tum": "tum", ".kitti": "kitti", ".npz": "npz", ".npy": "npy"}
 _SNIFFED = (".txt", ".csv")
+_NAME_IT = "--from on the command line, format= in Python"  # (the messages serve both)
+# The extensions each pose format may be written under; the others named here (and in
+# _BY_EXTENSION) are another format's, and a file under one would be misread: text in an .npz.
+_POSE_EXTENSIONS = {"tum": (".tum", ".txt"), "kitti": (".kitti", ".txt"), "euroc": (".csv",)}
+_KNOWN_EXTENSIONS = (*_BY_EXTENSION, *_SNIFFED)
 PathLike = Union[str, os.PathLike]
 
 
@@ -76,22 +81,26 @@ def detect_format(path: PathLike, format: Optional[str] = None) -> str:
         return _BY_EXTENSION[suffix]
     if suffix not in _SNIFFED:
         raise PoseFileError(path, f"cannot tell the format from the extension {suffix or '(none)'!r}: name it "
-                            f"with --from ({', '.join(FORMATS)})")
-    for line in _first_lines(path):
+                            f"({_NAME_IT}: {', '.join(FORMATS)})")
+    if suffix == ".csv":
+        with open(path, "rb") as stream:
+            _skip_byte_order_mark(stream)
+            header, _, _ = read_header(stream)
+            data = next((line for _, line in zip(range(50), stream) if line.strip()
+                         and not line.lstrip().startswith(b"#")), b"")
+        if header:
+            return "euroc" if euroc_header_problem(header) is None else "csv"  # (EuRoC's order, whatever its units)
+        if data:
+            return "euroc" if _numbers(data.decode("utf-8", "replace").split(",")) >= 8 else "csv"
+    for line in _first_lines(path) if suffix == ".txt" else ():  # (a .csv gets here only with no line)
         text = line.decode("utf-8", "replace")
-        if suffix == ".csv":
-            if euroc_header_problem(line) is None:  # (a header in EuRoC's order, whatever its units)
-                return "euroc"
-            if not text.startswith("#") and _numbers(text.split(",")) >= 8:
-                return "euroc"
-            return "csv"
         if text.startswith("#"):
             continue
         count = _numbers(text.split())
         if count in (8, 12):
             return "tum" if count == 8 else "kitti"
         raise PoseFileError(path, f"a .txt pose file has 8 numbers a line (TUM) or 12 (KITTI); the first data "
-                            f"line has {len(text.split())} fields: name the format with --from")
+                            f"line has {len(text.split())} fields: name the format ({_NAME_IT})")
     raise PoseFileError(path, "the file holds no poses (empty, or comments only)")
 
 
@@ -116,6 +125,7 @@ def output_plan(path: PathLike, to: Optional[str] = None, degrees: bool = False)
     """
     suffix = Path(path).suffix.lower()
     if to in POSE_FORMATS:
+        _check_pose_extension(path, to)
         return to, {"tum": "quat_xyzw", "kitti": "matrix", "euroc": "quat"}[to]
     plain = {".csv": "csv", ".npz": "npz", ".npy": "npy"}.get(suffix)
     if to is None:
@@ -123,17 +133,32 @@ def output_plan(path: PathLike, to: Optional[str] = None, degrees: bool = False)
             return suffix[1:], "quat_xyzw" if suffix == ".tum" else "matrix"
         if plain is None:
             raise PoseFileError(path, f"cannot tell the output format from the extension {suffix or '(none)'!r}: "
-                                "use .tum, .kitti, .csv, .npz or .npy, or --to tum|kitti|euroc")
+                                "use .tum, .kitti, .csv, .npz or .npy, or name a pose format "
+                                "(--to or format=: tum, kitti, euroc)")
         return plain, "quat"
     try:
-        rep, _ = parse_representation(to, "--to")
+        rep, _ = parse_representation(to, "output rotations")
     except ValueError as err:
         raise PoseFileError(path, f"{err}; pose formats: {', '.join(POSE_FORMATS)}") from None
     if rep.name == "rot9d":
         to = "matrix"
     if plain is None:
-        raise PoseFileError(path, f"--to {to} writes a plain file: OUT must end in .csv, .npz or .npy")
+        raise PoseFileError(path, f"rotations as {to} are written to a plain file: its name must end in .csv, "
+                            ".npz or .npy")
     return plain, to
+
+
+_READ_BACK_AS = {".tum": "TUM", ".kitti": "KITTI", ".txt": "TUM or KITTI text", ".csv": "a CSV",
+                 ".npz": "a NumPy archive", ".npy": "a NumPy array"}
+
+
+def _check_pose_extension(path: PathLike, format: str) -> None:
+    """Refuse a pose format's text under another format's extension (TUM text named ``.npz``, say),
+    which every reader, ours included, would take for that other format."""
+    suffix = Path(path).suffix.lower()
+    if suffix in _KNOWN_EXTENSIONS and suffix not in _POSE_EXTENSIONS[format]:
+        raise PoseFileError(path, f"{format} output under the extension {suffix} would be read back as "
+                            f"{_READ_BACK_AS[suffix]}: name it {' or '.join(_POSE_EXTENSIONS[format])}")
 
 
 def read_times(path: PathLike) -> Tuple[np.ndarray, Optional[np.ndarray]]:
@@ -348,6 +373,8 @@ def write_poses(path: PathLike, poses: Union[Poses, Iterable[Poses]], format: Op
     if format is None:
         name, default_rep = output_plan(path, representation, degrees)
     elif format in WRITERS:
+        if format in POSE_FORMATS:
+            _check_pose_extension(path, format)
         name, default_rep = format, {"tum": "quat_xyzw", "kitti": "matrix"}.get(format, "quat")
     else:
         raise PoseFileError(path, f"unknown format {format!r}: use one of {', '.join(FORMATS)}")
@@ -393,7 +420,7 @@ def convert_file(src: PathLike, dst: PathLike, to: Optional[str] = None, from_fo
     if not os.path.isfile(src):
         raise PoseFileError(src, "no such file" if not os.path.exists(src) else "not a regular file")
     if os.path.exists(dst) and os.path.samefile(src, dst):
-        raise PoseFileError(dst, "OUT is the same file as IN: choose another output name")
+        raise PoseFileError(dst, "the output is the same file as the input: choose another output name")
     source = detect_format(src, from_format)
     target, representation = output_plan(dst, to, degrees)
     report.note(f"reading {src} as {source}; writing {dst} as {target}"

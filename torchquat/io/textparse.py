@@ -275,11 +275,41 @@ def decimal_seconds_to_ns(fields: Sequence[bytes]) -> Optional[np.ndarray]:
     return np.where(chars[:, 0] == ord("-"), -ns, ns)
 
 
-def read_header(stream: BinaryIO) -> Tuple[bytes, int]:
-    """Read the first non-blank line (a CSV header); return it and how many lines it took."""
-    count = 0
-    for line in stream:
+def is_data_line(line: bytes) -> bool:
+    """Whether a CSV line holds numbers (its first field reads as a float), not column names."""
+    try:
+        float(line.split(b",", 1)[0])
+    except ValueError:
+        return False
+    return True
+
+
+def read_header(stream: BinaryIO) -> Tuple[bytes, int, int]:
+    """Find a CSV's header: its first non-blank line that is not a ``#`` comment or, when that
+    line is already data, the last ``#`` line before it (``#timestamp,...``, as EuRoC writes it);
+    ``b""`` when there is neither. So a preamble of ``#`` comments before a header is skipped, and
+    a header written as a comment is still one. (A stream that cannot seek takes its first
+    non-blank line.)
+
+    Returns:
+        ``(header, its line number (0 for none), the number of the line the stream is left at)``:
+        the line after the header, or the first data line.
+    """
+    count, comment, comment_number = 0, b"", 0
+    seekable = stream.seekable()
+    while True:
+        start = stream.tell() if seekable else None
+        line = stream.readline()
+        if not line:
+            return comment, comment_number, count + 1
         count += 1
-        if line.strip():
-            return line, count
-    return b"", count
+        stripped = line.strip()
+        if not stripped:
+            continue
+        if not seekable or not (stripped.startswith(b"#") or is_data_line(stripped)):
+            return line, count, count + 1
+        if stripped.startswith(b"#"):
+            comment, comment_number = line, count
+            continue
+        stream.seek(start)  # (the first data line: it is read again with the others)
+        return comment, comment_number, count
