@@ -92,15 +92,16 @@ def detect_format(path: PathLike, format: Optional[str] = None) -> str:
             return "euroc" if euroc_header_problem(header) is None else "csv"  # (EuRoC's order, whatever its units)
         if data:
             return "euroc" if _numbers(data.decode("utf-8", "replace").split(",")) >= 8 else "csv"
-    for line in _first_lines(path) if suffix == ".txt" else ():  # (a .csv gets here only with no line)
-        text = line.decode("utf-8", "replace")
-        if text.startswith("#"):
-            continue
-        count = _numbers(text.split())
-        if count in (8, 12):
-            return "tum" if count == 8 else "kitti"
-        raise PoseFileError(path, f"a .txt pose file has 8 numbers a line (TUM) or 12 (KITTI); the first data "
-                            f"line has {len(text.split())} fields: name the format ({_NAME_IT})")
+    else:
+        for line in _first_lines(path):
+            text = line.decode("utf-8", "replace")
+            if text.startswith("#"):
+                continue
+            count = _numbers(text.split())
+            if count in (8, 12):
+                return "tum" if count == 8 else "kitti"
+            raise PoseFileError(path, f"a .txt pose file has 8 numbers a line (TUM) or 12 (KITTI); the first data "
+                                f"line has {len(text.split())} fields: name the format ({_NAME_IT})")
     raise PoseFileError(path, "the file holds no poses (empty, or comments only)")
 
 
