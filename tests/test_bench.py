@@ -4,6 +4,7 @@ check. No timing is asserted (the numbers depend on the machine and its load).""
 import argparse
 import importlib.util
 import json
+import os
 
 import pytest
 import torch
@@ -180,3 +181,48 @@ def test_a_stopped_run_reports_the_finished_measurements(how, status, monkeypatc
     assert data["meta"]["stopped_by"] == how and (data["meta"]["finished"], data["meta"]["planned"]) == (2, 4)
     assert {r["op"] for r in data["results"]} == {"quat_to_matrix", "quat_multiply"}
     assert signal.getsignal(signal.SIGTERM) is handler and len(calls) == 11  # the handler is put back
+
+
+def test_bad_threads_and_seed_exit_2_without_a_traceback(capsys):
+    assert bench.main(["--threads", "0", "--ops", "quat_to_matrix", "--allocator", "none"]) == 2
+    assert "--threads must be >= 1" in capsys.readouterr().err
+    assert bench.main(["--seed", str(2 ** 64), "--ops", "quat_to_matrix", "--allocator", "none"]) == 2
+    assert "--seed" in capsys.readouterr().err
+
+
+_FAST = ["--ops", "quat_to_matrix", "--peers", "none", "--no-backward", "--min-run-time", "0.001", "--rounds", "1",
+         "--allocator", "none"]
+
+
+def test_an_error_at_a_later_size_keeps_what_finished(tmp_path, capsys, monkeypatch):
+    # an allocation failure at a large N used to lose the whole run, table and JSON
+    make_inputs = bench._ops.make_inputs
+
+    def failing(n, *args, **kwargs):
+        if n == 7:
+            raise RuntimeError("can't allocate memory")
+        return make_inputs(n, *args, **kwargs)
+
+    monkeypatch.setattr(bench._ops, "make_inputs", failing)
+    path = tmp_path / "b.json"
+    assert bench.main(["--n", "1", "7", "--json", str(path), *_FAST]) == 1
+    captured = capsys.readouterr()
+    assert "error at N=7" in captured.err and "can't allocate memory" in captured.err
+    data = json.loads(path.read_text())
+    assert data["meta"]["stopped_by"].startswith("error at N=7")
+    assert {r["n"] for r in data["results"]} == {1}
+    assert "quat -> matrix" in captured.out
+
+
+def test_a_json_that_cannot_be_written_is_exit_2_and_keeps_the_old_file(tmp_path, capsys, monkeypatch):
+    import torchquat.io.streaming as streaming
+
+    def no_space(*_):
+        raise OSError(28, "No space left on device")
+
+    path = tmp_path / "b.json"
+    path.write_text("old")
+    monkeypatch.setattr(streaming.os, "replace", no_space)
+    assert bench.main(["--n", "1", "--json", str(path), *_FAST]) == 2
+    assert "No space left on device" in capsys.readouterr().err
+    assert path.read_text() == "old" and os.listdir(tmp_path) == ["b.json"]

@@ -183,3 +183,20 @@ def test_metrics():
     assert err_rotvec(-v / 2, v / 2) == pytest.approx(math.pi)  # a quarter turn: the sign matters
     nan = err_quat(torch.full((1, 4), math.nan), q)
     assert math.isinf(nan) and not Row("f", "c", "o", "m", nan, 1.0).passed
+
+
+def test_a_seed_out_of_range_is_a_usage_error(tmp_path):
+    status, _, err, _ = run_crosscheck(tmp_path, "--n", "3", "--seed", str(10 ** 20))
+    assert status == 2 and "--seed" in err  # (was two "(oracle crashed)" rows, exit 1: a failed check)
+
+
+def test_a_json_that_cannot_be_written_is_exit_2_not_a_failed_check(tmp_path, monkeypatch):
+    import torchquat.io.streaming as streaming
+
+    def no_space(*_):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(streaming.os, "replace", no_space)
+    status, out, err, data = run_crosscheck(tmp_path, "--n", "3", "-q")
+    assert status == 2 and "No space left on device" in err and data is None
+    assert " 0 failed" in out

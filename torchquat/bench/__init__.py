@@ -26,6 +26,7 @@ from . import ops as _ops
 from . import report as _report
 from . import timing as _timing
 from .._signals import sigterm_as_interrupt
+from ..io.poses import PoseFileError
 from ..io.streaming import output_folder_problem
 
 __all__ = ["add_arguments", "run", "main"]
@@ -122,6 +123,12 @@ def run(args: argparse.Namespace) -> int:
     if any(n < 1 for n in ns):
         print("torchquat bench: --n values must be >= 1", file=sys.stderr)
         return 2
+    if int(getattr(args, "threads", 1)) < 1:
+        print("torchquat bench: --threads must be >= 1", file=sys.stderr)
+        return 2
+    if not 0 <= int(getattr(args, "seed", 0)) < 2 ** 63:
+        print("torchquat bench: --seed must be between 0 and 2**63 - 1", file=sys.stderr)
+        return 2
     try:
         device = torch.device(getattr(args, "device", "cpu"))
         torch.empty(0, device=device)
@@ -171,7 +178,7 @@ def run(args: argparse.Namespace) -> int:
 
     results = []
     total = len(ns) * len(selected)
-    done, current, stopped = 0, None, None  # stopped: the signal's name, if the run was interrupted
+    n, done, current, stopped = None, 0, None, None  # stopped: the signal, or the error, that ended the run early
     started = time.perf_counter()
     with sigterm_as_interrupt():
         try:
@@ -225,8 +232,12 @@ def run(args: argparse.Namespace) -> int:
                     del out
                     current = None  # (finished)
                 del inputs
-        except KeyboardInterrupt as exc:
-            stopped = "SIGTERM" if str(exc) == "SIGTERM" else "SIGINT"
+        except (KeyboardInterrupt, Exception) as exc:  # (an error, e.g. out of memory at a larger N, keeps the rest too)
+            if isinstance(exc, KeyboardInterrupt):
+                stopped = "SIGTERM" if str(exc) == "SIGTERM" else "SIGINT"
+            else:
+                where = f"N={n}" + (f" {current[1]}" if current is not None else "")
+                stopped = f"error at {where}: {type(exc).__name__}: {exc}".splitlines()[0][:300]
             if current is not None:  # the table keeps every finished (N, op); the one in progress is dropped
                 done -= 1
                 results[:] = [r for r in results if (r["n"], r["op"]) != current]
@@ -292,7 +303,14 @@ def run(args: argparse.Namespace) -> int:
                 "cpus": os.cpu_count(), "python": platform.python_version(), "elapsed_s": elapsed,
                 "peers": {p.name: {"version": p.version, "import_s": p.import_s, "error": p.error} for p in peers},
                 "stopped_by": stopped, "finished": done, "planned": total}
-        _report.write_json(json_path, meta, results, torch_peers, legend, agreement)
+        try:
+            _report.write_json(json_path, meta, results, torch_peers, legend, agreement)
+        except (OSError, PoseFileError) as exc:
+            print(f"torchquat bench: --json {json_path}: {exc}", file=sys.stderr)
+            return 2
+    if stopped is not None and stopped.startswith("error"):
+        print(f"torchquat bench: stopped by an {stopped} (the table has what finished before)", file=sys.stderr)
+        return 1
     return {None: 0, "SIGINT": 130, "SIGTERM": 143}[stopped]
 
 

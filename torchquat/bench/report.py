@@ -1,7 +1,8 @@
 """The markdown table and the JSON file."""
 
-import json
 from typing import Dict, List, Optional, Sequence
+
+from ..io.streaming import write_json as atomic_json
 
 TORCHQUAT = "torchquat"
 COMPILED = "torchquat compiled"
@@ -118,6 +119,4 @@ def write_json(path: str, meta: dict, results: List[dict], torch_peers: Sequence
                agreement: List[dict]) -> None:
     data = {"meta": meta, "results": results, "summary": summarize(results, torch_peers),
             "agreement": agreement, "legend": legend}
-    with open(path, "w", encoding="utf-8") as fh:
-        json.dump(data, fh, indent=1, default=str)
-        fh.write("\n")
+    atomic_json(path, data)

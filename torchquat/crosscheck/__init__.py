@@ -26,14 +26,14 @@ Example:
 
 import argparse
 import importlib
-import json
 import sys
 import time
 from typing import List, Optional, Sequence
 
 import torch
 
-from ..io.streaming import output_folder_problem
+from ..io.poses import PoseFileError
+from ..io.streaming import output_folder_problem, write_json
 from ._core import Context, Row, family_summary, format_table
 
 __all__ = ["add_arguments", "run", "main", "crosscheck"]
@@ -115,6 +115,9 @@ def run(args: argparse.Namespace) -> int:
     if args.n < 1:
         print(f"torchquat crosscheck: --n must be at least 1, got {args.n}", file=sys.stderr)
         return 2
+    if not 0 <= args.seed < 2 ** 63:
+        print(f"torchquat crosscheck: --seed must be between 0 and 2**63 - 1, got {args.seed}", file=sys.stderr)
+        return 2
     problem = args.json and output_folder_problem(args.json)  # (before the run, not after it)
     if problem:
         print(f"torchquat crosscheck: --json {problem}", file=sys.stderr)
@@ -148,8 +151,11 @@ def run(args: argparse.Namespace) -> int:
         report = {"torchquat": __version__, "dtype": args.dtype, "n": args.n, "seed": args.seed,
                   "oracles": versions, "checks": len(rows), "failed": len(failed),
                   "rows": [r.as_dict() for r in rows]}
-        with open(args.json, "w", encoding="utf-8") as f:
-            json.dump(report, f, indent=1)
+        try:
+            write_json(args.json, report)
+        except (OSError, PoseFileError) as exc:  # (exit 1 means a check failed: this is not that)
+            print(f"torchquat crosscheck: --json {args.json}: {exc}", file=sys.stderr)
+            return 2
     return 1 if failed else 0
 
 

@@ -4,6 +4,7 @@ Text formats are read in chunks of lines and written chunk by chunk, so memory s
 the file's size; ``.npz``/``.npy`` are whole arrays by nature and are held in memory.
 """
 
+import json
 import os
 import tempfile
 from contextlib import contextmanager, suppress
@@ -351,6 +352,13 @@ def atomic_output(path: PathLike) -> Iterator[BinaryIO]:
         with suppress(OSError):
             os.unlink(temporary)
         raise
+
+
+def write_json(path: PathLike, data) -> None:
+    """Write ``data`` as indented JSON through :func:`atomic_output`: a failed write (a full disk,
+    a file that cannot be replaced) leaves an existing file as it was."""
+    with atomic_output(path) as stream:
+        stream.write(json.dumps(data, indent=1, default=str).encode("utf-8") + b"\n")
 
 
 def write_poses(path: PathLike, poses: Union[Poses, Iterable[Poses]], format: Optional[str] = None,
