@@ -226,3 +226,62 @@ def test_a_json_that_cannot_be_written_is_exit_2_and_keeps_the_old_file(tmp_path
     assert bench.main(["--n", "1", "--json", str(path), *_FAST]) == 2
     assert "No space left on device" in capsys.readouterr().err
     assert path.read_text() == "old" and os.listdir(tmp_path) == ["b.json"]
+
+
+@pytest.mark.parametrize("option, message", [
+    (["--rounds", "0"], "--rounds must be >= 1"),
+    (["--min-run-time", "-1"], "--min-run-time must be >= 0"),
+    (["--min-run-time", "nan"], "--min-run-time must be >= 0"),
+    (["--json", ""], "--json needs a file name"),
+    (["--peers", "none", "roma"], "name peers or none, not both"),
+])
+def test_options_out_of_range_exit_2_before_the_run(option, message, capsys, monkeypatch):
+    # (--rounds 0 was clamped to 1, --json "" wrote nothing and --peers none roma dropped none, silently)
+    monkeypatch.setattr(bench._ops, "make_inputs", None)  # (a run would fail: the checks come first)
+    assert bench.main(["--ops", "quat_to_matrix", "--allocator", "none", *option]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_a_value_named_twice_is_timed_once(tmp_path, monkeypatch):
+    calls = []
+
+    def fake_measure(fn, min_run_time, threads, min_runs=3):
+        calls.append(fn)
+        return timing.Timing(median=1.0, iqr=0.0, runs=3, calls=3)
+
+    monkeypatch.setattr(timing, "measure", fake_measure)
+    path = tmp_path / "b.json"
+    args = ["--n", "1", "1", "--ops", "quat_to_matrix", "quat_to_matrix", "--peers", "none", "none",
+            "--no-backward", "--rounds", "1", "--allocator", "none", "--json", str(path)]
+    assert bench.main(args) == 0
+    data = json.loads(path.read_text())
+    assert data["meta"]["ns"] == [1] and data["meta"]["planned"] == 1
+    assert len(calls) == 1 + 3  # torchquat once, the floor's three preallocations
+    assert [(r["impl"], r["n"]) for r in data["results"]] == [("torchquat", 1), ("floor", 1)]
+
+
+def test_a_peer_whose_agreement_check_raises_is_err_not_different(tmp_path, capsys, monkeypatch):
+    def broken_output(out):
+        raise TypeError("cannot convert this output")
+
+    crashing = bench_ops.Impl(lambda q: q, lambda d: (d["q"],), "identity", to_tq=broken_output)
+    spec = ("fake", "torch", lambda mod: {"quat_to_matrix": crashing}, True, None)
+    monkeypatch.setattr(bench_ops, "PEER_SPECS", [spec])
+    monkeypatch.setattr(bench_ops, "PEER_NAMES", ["fake"])
+    path = tmp_path / "b.json"
+    assert bench.main(["--n", "1", "--ops", "quat_to_matrix", "--no-backward", "--min-run-time", "0.001",
+                       "--rounds", "1", "--allocator", "none", "--json", str(path)]) == 0
+    out = capsys.readouterr().out
+    row = next(line for line in out.splitlines() if line.startswith("| quat -> matrix | fwd |"))
+    assert row.split(" | ")[3] == "err" and "≠" not in row
+    assert "err fake on quat_to_matrix: the agreement check raised TypeError: cannot convert this output" in out
+    data = json.loads(path.read_text())
+    assert data["summary"][0]["fastest_peer"] is None
+    assert data["agreement"][0]["error"].startswith("TypeError")
+
+
+def test_mallopt_line_states_the_threshold_it_sets(monkeypatch):
+    monkeypatch.setattr(timing, "_mallopt", lambda: True)
+    monkeypatch.delenv("GLIBC_TUNABLES", raising=False)
+    line = timing.steady_allocator("mallopt")
+    assert "2^31-1" in line and "2 GiB" in line and "equivalent" not in line

@@ -276,3 +276,21 @@ def test_python_api_messages_do_not_speak_only_of_command_line_options(tmp_path)
     assert "--to" not in str(info.value)
     with pytest.raises(PoseFileError, match="format= in Python"):
         read_poses(_write(tmp_path / "x.dat", "1 0 0 0 0 0 0 1\n"))
+
+
+def test_a_failed_rename_names_the_output_not_the_temporary_file(tmp_path, monkeypatch, capsys):
+    import torchquat.io.streaming as streaming
+
+    def refused(src, dst):  # as os.replace fails: its message names both files
+        raise PermissionError(13, "Permission denied", src, None, dst)
+
+    out = tmp_path / "out.tum"
+    monkeypatch.setattr(streaming.os, "replace", refused)
+    assert cli.main(["convert", torchquat_sample(), str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"{out}: could not be replaced: Permission denied" in err and ".tmp" not in err
+    assert os.listdir(tmp_path) == []
+    with pytest.raises(PoseFileError, match="could not be replaced") as caught:
+        with atomic_output(out) as stream:
+            stream.write(b"x")
+    assert caught.value.path == str(out) and isinstance(caught.value.__cause__, PermissionError)

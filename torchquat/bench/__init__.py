@@ -94,6 +94,11 @@ def _callable(impl: _ops.Impl, inputs, backward: bool, seed: int):
     return step
 
 
+def _unique(values) -> list:
+    """``values`` in order, each once."""
+    return list(dict.fromkeys(values))
+
+
 def _progress(text: str, enabled: bool) -> None:
     if enabled:
         print(text, file=sys.stderr, flush=True)
@@ -101,20 +106,26 @@ def _progress(text: str, enabled: bool) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark described by ``args`` (from :func:`add_arguments`); return the exit status."""
-    ns: List[int] = list(getattr(args, "n", None) or [1, 1000, 1_000_000])
+    ns: List[int] = _unique(getattr(args, "n", None) or [1, 1000, 1_000_000])  # (a repeat would be timed twice)
     json_path = getattr(args, "json", None)
+    if json_path is not None and not json_path.strip():
+        print("torchquat bench: --json needs a file name", file=sys.stderr)
+        return 2
     problem = json_path and output_folder_problem(json_path)  # (before the run, not after it)
     if problem:
         print(f"torchquat bench: --json {problem}", file=sys.stderr)
         return 2
-    op_names = getattr(args, "ops", None) or [op.name for op in _ops.OPS]
+    op_names = _unique(getattr(args, "ops", None) or [op.name for op in _ops.OPS])
     unknown = [name for name in op_names if name not in _ops.OPS_BY_NAME]
     if unknown:
         print(f"torchquat bench: unknown op(s) {' '.join(unknown)}; choose from "
               + " ".join(op.name for op in _ops.OPS), file=sys.stderr)
         return 2
     peer_names = getattr(args, "peers", None)
-    peer_names = _ops.PEER_NAMES if peer_names is None else [p for p in peer_names if p != "none"]
+    if peer_names is not None and "none" in peer_names and len(set(peer_names)) > 1:
+        print("torchquat bench: --peers none means torchquat alone: name peers or none, not both", file=sys.stderr)
+        return 2
+    peer_names = _ops.PEER_NAMES if peer_names is None else _unique(p for p in peer_names if p != "none")
     bad = [p for p in peer_names if p not in _ops.PEER_NAMES]
     if bad:
         print(f"torchquat bench: unknown peer(s) {' '.join(bad)}; choose from "
@@ -125,6 +136,12 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if int(getattr(args, "threads", 1)) < 1:
         print("torchquat bench: --threads must be >= 1", file=sys.stderr)
+        return 2
+    if int(getattr(args, "rounds", 3)) < 1:
+        print("torchquat bench: --rounds must be >= 1", file=sys.stderr)
+        return 2
+    if not float(getattr(args, "min_run_time", 0.2)) >= 0:  # (NaN too; 0 still takes 3 measurements)
+        print("torchquat bench: --min-run-time must be >= 0 seconds", file=sys.stderr)
         return 2
     if not 0 <= int(getattr(args, "seed", 0)) < 2 ** 63:
         print("torchquat bench: --seed must be between 0 and 2**63 - 1", file=sys.stderr)
@@ -141,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
     dtype = _DTYPES[getattr(args, "dtype", "float32")]
     threads = int(getattr(args, "threads", 1))
     min_run_time = float(getattr(args, "min_run_time", 0.2))
-    rounds = max(1, int(getattr(args, "rounds", 3)))
+    rounds = int(getattr(args, "rounds", 3))
     passes = ["fwd", "fwd+bwd"] if getattr(args, "backward", True) else ["fwd"]
     seed = int(getattr(args, "seed", 0))
     compiled = bool(getattr(args, "compiled", False)) and _ops.has_compiled_kernels()
@@ -194,6 +211,7 @@ def run(args: argparse.Namespace) -> int:
                         impls.append((_report.COMPILED, _ops.torchquat_impl(op, compiled=True), None))
                     impls += [(p.name, p.impls[op.name], agrees.get((op.name, p.name))) for p in active
                               if op.name in p.impls]
+                    check_errors = {a["impl"]: a["error"] for a in agreement if a["op"] == op.name and a["error"]}
                     for pss in passes:
                         cells = []  # (record, callable)
                         for name, impl, ok in impls:
@@ -201,6 +219,8 @@ def run(args: argparse.Namespace) -> int:
                                 continue
                             rec = {"op": op.name, "n": n, "pass": pss, "impl": name, "call": impl.call,
                                    "agrees": ok, "median_s": None, "iqr_s": None, "runs": 0, "error": None}
+                            if name in check_errors:  # (its output could not be compared: shown as err)
+                                rec["check_error"] = check_errors[name]
                             try:
                                 fn = _callable(impl, inputs, pss == "fwd+bwd", seed)
                                 if name == _report.COMPILED:
@@ -284,8 +304,8 @@ def run(args: argparse.Namespace) -> int:
         footer.append(f"- {op.label}: " + "; ".join(f"{k}: `{v}`" for k, v in calls.items()))
     failures = [a for a in agreement if not a["agrees"]]
     for a in failures:
-        footer.append(f"- ≠ {a['impl']} on {a['op']}: max abs error {a['max_abs_err']}"
-                      + (f" ({a['error']})" if a["error"] else ""))
+        footer.append(f"- err {a['impl']} on {a['op']}: the agreement check raised {a['error']}" if a["error"]
+                      else f"- ≠ {a['impl']} on {a['op']}: max abs error {a['max_abs_err']}")
     errors = {}
     for r in results:
         if r.get("error"):

@@ -75,7 +75,7 @@ def summarize(results: List[dict], torch_peers: Sequence[str]) -> List[dict]:
 def _cell(r: Optional[dict]) -> str:
     if r is None:
         return "—"
-    if r.get("error"):
+    if r.get("error") or r.get("check_error"):  # (it raised, or its agreement check did)
         return "err"
     text = fmt_time(r.get("median_s"))
     if r.get("agrees") is False:

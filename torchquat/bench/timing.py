@@ -94,8 +94,8 @@ def steady_allocator(mode: str) -> str:
             env[_GUARD] = "1"
             os.execve(sys.executable, argv, env)
     if mode in ("auto", "mallopt", "reexec") and _mallopt():
-        return ("allocator: glibc mallopt(M_MMAP_MAX=0, M_TRIM_THRESHOLD=2^31-1) in-process, the "
-                f"equivalent of GLIBC_TUNABLES={TUNABLES}")
+        return ("allocator: glibc mallopt(M_MMAP_MAX=0, M_TRIM_THRESHOLD=2^31-1) in-process (as "
+                f"GLIBC_TUNABLES={TUNABLES}, with mallopt's largest trim threshold, 2 GiB, for the tunable's 64 GiB)")
     return "allocator: glibc defaults (could not make it steady; N = 1e6 times include page faults)"
 
 

@@ -347,7 +347,10 @@ def atomic_output(path: PathLike) -> Iterator[BinaryIO]:
             os.umask(umask)
             mode = 0o666 & ~umask
         os.chmod(temporary, mode)
-        os.replace(temporary, path)
+        try:
+            os.replace(temporary, path)
+        except OSError as exc:  # (its message names the temporary file, which is about to go)
+            raise PoseFileError(path, f"could not be replaced: {exc.strerror or exc}") from exc
     except BaseException:
         with suppress(OSError):
             os.unlink(temporary)
