@@ -154,6 +154,18 @@ def test_head_rejects_wrong_feature_size(shape):
         head(torch.randn(shape))
 
 
+def test_head_takes_any_integer_size_and_names_a_dtype_mismatch():
+    import numpy as np
+
+    assert RotationHead(np.int64(IN)).in_features == IN and type(RotationHead(np.int64(IN)).in_features) is int
+    with pytest.raises(ValueError, match="positive int, got True"):
+        RotationHead(True)
+    head = make_head("rot6d")  # float32 parameters
+    with pytest.raises(TypeError, match=r"RotationHead: features are torch.float64 but the head's parameters are torch.float32"):
+        head(torch.randn(5, IN, dtype=torch.float64))  # (was PyTorch's "mat1 and mat2 must have the same dtype")
+    assert head.double()(torch.randn(5, IN, dtype=torch.float64)).dtype == torch.float64
+
+
 def re_shape(shape):
     return str(tuple(shape)).replace("(", r"\(").replace(")", r"\)")
 

@@ -66,6 +66,7 @@ BAD_CONVERT = [
     (("quat", "matrix"), {"convention": "ZYX"}, "Convert: convention='ZYX' only applies to Euler angles"),
     (("quat", "axis_angle"), {"degrees": True}, "Convert: degrees=True only applies to Euler angles"),
     ((3, "quat"), {}, "Convert: expected a representation name, got 3"),
+    (("euler:ZYX", "quat"), {"degrees": "no"}, "Convert: expected degrees to be True or False, got 'no'"),
 ]
 
 
@@ -75,9 +76,14 @@ def test_convert_rejects_bad_tokens_at_construction(args, kwargs, message):
         Convert(*args, **kwargs)
 
 
-def test_convert_wrong_input_shape_is_a_shape_error():
-    with pytest.raises(torchquat.ShapeError, match=r"expected x of shape \(\.\.\., 4\), got \(5, 3\)"):
+def test_convert_wrong_input_shape_is_a_shape_error_naming_the_layer():
+    # (it named the functional convert: "convert: expected x ...")
+    with pytest.raises(torchquat.ShapeError, match=r"^Convert: expected x of shape \(\.\.\., 4\), got \(5, 3\)"):
         Convert("quat", "matrix")(torch.zeros(5, 3))
+    with pytest.raises(TypeError, match=r"^Convert: expected x to be a floating-point tensor"):
+        Convert("quat", "matrix")(torch.zeros(5, 4, dtype=torch.int64))
+    rot9d = Convert("rot9d", "quat")  # (3 x 3 matrices and rows of 9 both)
+    assert torch.equal(rot9d(torch.eye(3)), rot9d(torch.eye(3).flatten()))
 
 
 @pytest.mark.parametrize("q_shape,v_shape", [
@@ -95,5 +101,9 @@ def test_rotate_vectors_equals_quat_rotate_with_broadcasting(q_shape, v_shape):
 
 
 def test_rotate_vectors_rejects_batches_that_do_not_broadcast():
-    with pytest.raises(torchquat.ShapeError, match="broadcastable"):
+    with pytest.raises(torchquat.ShapeError, match="^RotateVectors: expected q and v with broadcastable"):
         RotateVectors()(torch.randn(2, 4), torch.randn(3, 3))
+    with pytest.raises(torchquat.ShapeError, match=r"^RotateVectors: expected q of shape \(\.\.\., 4\)"):
+        RotateVectors()(torch.randn(2, 3), torch.randn(2, 3))
+    with pytest.raises(torchquat.ShapeError, match=r"^RotateVectors: expected v of shape \(\.\.\., 3\)"):
+        RotateVectors()(torch.randn(2, 4), torch.randn(2, 4))

@@ -163,7 +163,8 @@ def quat_geodesic_distance(q1: Tensor, q2: Tensor) -> Tensor:
     gradient is finite everywhere (0 at distance 0, the kink of the distance).
 
     Args:
-        q1: quaternions ``(w, x, y, z)``, any non-zero norm; on the large-batch path (above
+        q1: quaternions ``(w, x, y, z)``, any non-zero norm whose square is a normal number
+            (about 1e-19 to 1e19 in float32, 1e-153 to 1e154 in float64); on the large-batch path (above
             4,096 rows on the CPU, and compiled), norms between about 3e-10 and 4e9 (float32) or
             1e-77 and 1e77 (float64), where the squared minors neither underflow (below, the
             distance loses precision, and is NaN below about 6e-12 in float32) nor overflow

@@ -202,7 +202,10 @@ def quat_rotate(q: Tensor, v: Tensor) -> Tensor:
     ``v' = v + w t + q_vec x t``.
 
     A non-unit ``q`` rotates by ``q / |q|`` (``t`` is divided by ``|q|^2``), matching
-    :func:`quat_to_matrix`; the zero quaternion gives NaN.
+    :func:`quat_to_matrix`; the zero quaternion gives NaN. ``|q|^2`` must neither overflow nor
+    underflow: norms from about 1e-19 to 1e19 in float32 (1e-153 to 1e154 in float64); beyond, a
+    large ``q`` leaves ``v`` unrotated and a tiny one gives NaN, so normalise such inputs first
+    (:func:`quat_normalize` takes any finite norm).
 
     Args:
         q: quaternions ``(w, x, y, z)``.

@@ -1,5 +1,6 @@
 """Network heads that map unconstrained features to valid rotations."""
 
+import operator
 from typing import Optional
 
 import torch
@@ -42,7 +43,8 @@ class RotationHead(nn.Module):
     output's norm, stays below about 1e19, where its square overflows in float32); NaN or inf
     outputs (from NaN features, or features so large that the linear layer overflows, near 3e38
     in float32) give NaN rotations (never an exception). An output that is exactly zero is no
-    rotation for ``"quat"`` and ``"rot6d"`` (a zero quaternion, collinear columns): NaN, so do not
+    rotation for ``"quat"`` and ``"rot6d"`` (a zero quaternion, collinear columns): NaN, as is a
+    ``"rot6d"`` output whose two halves are collinear or whose second half is zero; so do not
     initialise such a head's weight and bias to zero (``"rot9d"``, ``"axis_angle"`` and
     ``"euler"`` give the identity there).
 
@@ -83,8 +85,13 @@ class RotationHead(nn.Module):
     def __init__(self, in_features: int, representation: str = "rot6d", output: str = "matrix",
                  convention: Optional[str] = None, bias: bool = True, device=None, dtype=None):
         super().__init__()
-        if isinstance(in_features, bool) or not isinstance(in_features, int) or in_features < 1:
+        try:  # (an integer of any kind, numpy's included, as nn.Linear takes; not a bool)
+            size = None if isinstance(in_features, bool) else operator.index(in_features)
+        except TypeError:
+            size = None
+        if size is None or size < 1:
             raise ValueError(f"RotationHead: expected in_features to be a positive int, got {in_features!r}")
+        in_features = size
         name = representation.partition(":")[0] if isinstance(representation, str) else representation
         if name not in HEAD_REPRESENTATIONS:
             raise ValueError(f"RotationHead: unknown representation {representation!r}: use one of "
@@ -108,6 +115,10 @@ class RotationHead(nn.Module):
             raise ShapeError(f"RotationHead: expected features of shape (..., {self.in_features}), got {got}")
         if not features.dtype.is_floating_point:  # (as every function: not PyTorch's "mat1 and mat2" dtype error)
             raise TypeError(f"RotationHead: expected features to be a floating-point tensor, got dtype {features.dtype}")
+        weight = self.linear.weight
+        if features.dtype != weight.dtype and not torch.is_autocast_enabled(features.device.type):
+            raise TypeError(f"RotationHead: features are {features.dtype} but the head's parameters are "
+                            f"{weight.dtype}: convert one (head.to({features.dtype}) or features.to({weight.dtype}))")
         y = self.linear(features)
         return self._to_rotation(y)
 

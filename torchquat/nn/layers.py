@@ -2,10 +2,13 @@
 
 from typing import Optional
 
+import torch
 from torch import Tensor, nn
 
+from ..errors import ShapeError
 from ..quaternion import quat_rotate
 from ..registry import convert, parse_conversion
+from ._common import check_tensor
 
 __all__ = ["Convert", "RotateVectors"]
 
@@ -50,10 +53,17 @@ class Convert(nn.Module):
             self.src, self.dst = f"euler:{src_conv.name}", f"euler:{dst_conv.name}"
         elif src_conv is not None or dst_conv is not None:
             self.convention = (src_conv or dst_conv).name
+        if degrees not in (True, False):  # ("no" would be true)
+            raise ValueError(f"Convert: expected degrees to be True or False, got {degrees!r}")
         self.degrees = bool(degrees)
+        self._src_shape = src_rep.shape
 
     def forward(self, x: Tensor) -> Tensor:
         """Convert ``x`` from ``src`` to ``dst``."""
+        # (checked here, so that errors name the layer; rot9d also takes 3 x 3 matrices: the last
+        # dimension compared first, as a symbolic batch size compared with 3 would guard it under export)
+        if not (self.src == "rot9d" and isinstance(x, Tensor) and x.dim() >= 2 and x.shape[-1] == 3 and x.shape[-2] == 3):
+            check_tensor("Convert", "x", x, self._src_shape)
         return convert(x, self.src, self.dst, convention=self.convention, degrees=self.degrees)
 
     def extra_repr(self) -> str:
@@ -69,7 +79,8 @@ class RotateVectors(nn.Module):
     """Rotate 3-vectors by quaternions: :func:`torchquat.quat_rotate` as a layer.
 
     Batch dims broadcast, so one rotation can move a whole point cloud (``q`` of shape
-    ``(B, 1, 4)`` with ``v`` of shape ``(B, N, 3)``). Non-unit quaternions rotate by ``q / |q|``.
+    ``(B, 1, 4)`` with ``v`` of shape ``(B, N, 3)``). Non-unit quaternions rotate by ``q / |q|``,
+    for norms where ``|q|^2`` neither overflows nor underflows (see :func:`torchquat.quat_rotate`).
 
     Shape:
         ``q``: ``(..., 4)`` ``(w, x, y, z)``; ``v``: ``(..., 3)``; output: ``(..., 3)`` with the
@@ -84,4 +95,11 @@ class RotateVectors(nn.Module):
 
     def forward(self, q: Tensor, v: Tensor) -> Tensor:
         """Rotate ``v`` by ``q``."""
+        check_tensor("RotateVectors", "q", q, (4,))  # (here, so that errors name the layer)
+        check_tensor("RotateVectors", "v", v, (3,))
+        try:
+            torch.broadcast_shapes(q.shape[:-1], v.shape[:-1])
+        except RuntimeError:
+            raise ShapeError(f"RotateVectors: expected q and v with broadcastable batch shapes, got "
+                             f"{tuple(q.shape)} and {tuple(v.shape)}") from None
         return quat_rotate(q, v)

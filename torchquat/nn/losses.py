@@ -30,7 +30,8 @@ class GeodesicLoss(nn.Module):
     ``"matrix"``: :func:`torchquat.matrix_geodesic_distance`, the angle of ``R1^T R2``;
     ``"quat"``: :func:`torchquat.quat_geodesic_distance`, sign-invariant (``q`` and ``-q`` are
     the same rotation). Both are computed with ``atan2`` rather than ``acos``, so the value is
-    accurate near 0 and pi and the gradient is finite there (0 at zero loss).
+    accurate near 0 and pi and the gradient is finite there (0 at zero loss). Quaternions need not
+    be unit, within the norms :func:`torchquat.quat_geodesic_distance` states.
 
     Args:
         representation: ``"matrix"`` (default) or ``"quat"``.
@@ -79,8 +80,9 @@ class QuatDistanceLoss(nn.Module):
     Sign-invariant, cheap (no trigonometry) and equal to ``1 - cos(angle / 2)``, a monotone
     function of the geodesic angle. Computed as ``min(|p - q|^2, |p + q|^2) / 2`` of the unit
     ``p``, ``q`` (the same number for unit quaternions): never below 0, and small losses keep
-    their digits where ``1 - |<p, q>|`` cancels. Quaternions need not be unit; zero quaternions
-    give NaN.
+    their digits where ``1 - |<p, q>|`` cancels. Quaternions need not be unit (norms from about
+    1e-19 to 1e19 in float32, where ``|q|^2`` neither overflows nor underflows; normalise others
+    first); zero quaternions give NaN.
 
     Args:
         reduction: ``'none' | 'mean' | 'sum'`` (default ``'mean'``).
