@@ -164,3 +164,12 @@ class DispatchRecorder(TorchDispatchMode):
     def __torch_dispatch__(self, func, types, args=(), kwargs=None):
         self.names.append(func.overloadpacket.__name__)
         return func(*args, **(kwargs or {}))
+
+
+def fix_transposes(monkeypatch, setting: str) -> None:
+    """Fix how large batches are transposed (``TORCHQUAT_TRANSPOSES``: ``matmul`` or ``copy``) for
+    one test; the cached choices are made again (``torchquat._planes.by_matmul``)."""
+    import torchquat._planes as planes
+
+    monkeypatch.setenv(planes.TRANSPOSES_VARIABLE, setting)
+    monkeypatch.setattr(planes, "_BY_MATMUL", {})

@@ -10,7 +10,7 @@ import torchquat as tq
 import torchquat._math as tqmath
 import torchquat._planes as _planes
 from torchquat._dispatch import kernel
-from function_table import ALL, BINARY, DispatchRecorder, assert_paths_agree, quats, singular_quats
+from function_table import ALL, BINARY, DispatchRecorder, assert_paths_agree, fix_transposes, quats, singular_quats
 from rotation_samples import cube_rotations, lock_angles
 
 PATH_DEPENDENT = ["quat_to_matrix", "quat_multiply", "quat_rotate", "matrix_to_quat", "axis_angle_to_quat",
@@ -152,6 +152,7 @@ def test_planes_written_in_place_give_the_same_numbers(name, monkeypatch):
 def test_forward_on_contiguous_columns_writes_its_output_planes_without_a_stack(name, monkeypatch):
     # the point of plane_buffer: the last passes write the planes that rows() transposes, so no
     # torch.stack (a pass over every output column) is dispatched when nothing records a graph
+    fix_transposes(monkeypatch, "matmul")  # (it counts the transposing matrix products; test_transposes.py the copies)
     fn, generic, _ = ALL[name]
     monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 0)
     monkeypatch.setattr(tqmath, "PLANAR_ROWS", 0)
@@ -365,6 +366,7 @@ def test_a_batch_from_a_middle_argument_is_blocked(monkeypatch):
 def test_one_pair_at_many_times_is_a_large_batch_and_blocked(monkeypatch):
     # slerp's batch may come from t alone (a whole path between two rotations): the columns, in
     # blocks, and the numbers of the rows' path
+    fix_transposes(monkeypatch, "matmul")  # (it counts the transposing matrix products; test_transposes.py the copies)
     q0, q1 = tq.random_quat(2, generator=torch.Generator().manual_seed(6))
     t = torch.linspace(-0.25, 1.25, BLOCKED_ROWS)
     (whole, whole_ops), (blocked, blocked_ops) = _whole_and_blocked(tq.quat_slerp, (q0, q1, t), monkeypatch)
@@ -379,6 +381,7 @@ def test_one_pair_at_many_times_is_a_large_batch_and_blocked(monkeypatch):
 def test_a_kernel_whose_intermediate_takes_the_lent_slice_still_returns_its_output(final, monkeypatch):
     # A kernel whose transposing matmul makes an intermediate of the output's shape writes that
     # into the lent slice; its output, computed from it, must still land there intact.
+    fix_transposes(monkeypatch, "matmul")  # (it counts the transposing matrix products; test_transposes.py the copies)
     @kernel(blocked_row_dims=(1,))
     def swapped_pairs(x):
         y = _planes.rows(_planes.columns(x))  # (takes the loan: the output's shape)
@@ -447,11 +450,15 @@ def test_threads_blocking_at_once_keep_their_own_outputs(monkeypatch):
         assert len(got) == 3 and all(torch.equal(g, want) for g in got)
 
 
+@pytest.mark.parametrize("transposes", ["matmul", "copy"])
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64], ids=["float32", "float64"])
 @pytest.mark.parametrize("convention", ["ZYX", "xyz", "ZXZ", "yxy"])
-def test_large_batch_euler_values_equal_the_differentiable_forward_bit_for_bit(convention, dtype, large_batches):
+def test_large_batch_euler_values_equal_the_differentiable_forward_bit_for_bit(convention, dtype, transposes, large_batches,
+                                                                               monkeypatch):
     # With nothing to differentiate the angles skip the substitutions that keep autograd finite
-    # (safe_sqrt's, and t1's (0, 1) pair at lock); a user must get the same angles either way.
+    # (safe_sqrt's, and t1's (0, 1) pair at lock); a user must get the same angles either way
+    # (with the copies too: atan2 written into strided columns of the rows would round differently).
+    fix_transposes(monkeypatch, transposes)
     large_batches()
     q = torch.cat([singular_quats(), quats(200, seed=5)]).to(dtype)
     q = torch.cat([q, q[:50] * 1e-12, torch.zeros(2, 4, dtype=dtype)])

@@ -42,6 +42,7 @@ def test_bench_table_and_json(tmp_path, capsys):
     assert "### N = 1\n" in out and "### N = 10\n" in out
     assert "| op | pass | torchquat |" in out
     assert "allocator: glibc defaults" in out
+    assert "transposes of large eager batches (TORCHQUAT_TRANSPOSES=" in out  # (N = 1 and 10 make none)
     for label in ("quat -> matrix", "quat -> Euler ZYX", "quat product"):
         assert f"| {label} | fwd |" in out and f"| {label} | fwd+bwd |" in out
     for peer in INSTALLED:
@@ -50,6 +51,7 @@ def test_bench_table_and_json(tmp_path, capsys):
     data = json.loads(path.read_text())
     assert set(data) == {"meta", "results", "summary", "agreement", "legend"}
     assert data["meta"]["ns"] == [1, 10] and data["meta"]["threads"] == 1 and data["meta"]["device"] == "cpu"
+    assert isinstance(data["meta"]["cpu"], str) and data["meta"]["transposes"].startswith("transposes of large")
     results = data["results"]
     mine = [r for r in results if r["impl"] == "torchquat"]
     assert {(r["op"], r["n"], r["pass"]) for r in mine} == {

@@ -84,7 +84,9 @@ class _ClosedForm(torch.autograd.Function):
         output, saved = rule.forward(*inputs, **options)
         ctx.rule, ctx.options, ctx.n_inputs = rule, options, len(inputs)
         ctx.save_for_backward(*inputs, *saved)
-        return output
+        # A view made here (rows reshaped into matrices, say) would be an output that autograd
+        # forbids writing in place; detached, it is a tensor of its own on the same memory.
+        return output.detach() if output._is_view() else output
 
     @staticmethod
     def backward(ctx, grad: Tensor):

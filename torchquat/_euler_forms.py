@@ -304,7 +304,7 @@ def _quat_planar_forms(q: Tensor, convention: EulerConvention):
     """q's columns, and the forms and ``|abcd|^2`` from q's 10 products in one matmul."""
     share = QUAT_TO_EULER_PLANAR_SHARE
     components = columns(q, share=share)
-    buffer = plane_buffer(len(PAIRS), components, share)
+    buffer = plane_buffer(len(PAIRS), components, share, output=False)
     products = [torch.mul(components[u], components[v], out=slot(buffer, p)) for p, (u, v) in enumerate(PAIRS)]
     *forms, abcd2 = combinations(products if buffer is None else buffer, DENSE[convention.name][0],
                                  "euler_q_" + convention.name, share=share)
@@ -315,7 +315,9 @@ def _quat_to_euler_planar_parts(q: Tensor, convention: EulerConvention, eps: flo
     """Contiguous columns: the angles, and what the closed-form backward needs (``values``: the
     angles alone, see :func:`angles_parts`)."""
     components, forms, abcd2 = _quat_planar_forms(q, convention)
-    buffer = plane_buffer(3, forms, QUAT_TO_EULER_PLANAR_SHARE)
+    # (contiguous planes: atan2 into strided columns runs a scalar loop, slower than any
+    # transpose, and its last bit would differ from the differentiable forward's; see rows())
+    buffer = plane_buffer(3, forms, QUAT_TO_EULER_PLANAR_SHARE, output=False)
     angles, saved = angles_parts(forms, convention, eps, abcd2, out=buffer, values=values)
     return rows(angles if buffer is None else buffer, share=QUAT_TO_EULER_PLANAR_SHARE), None if values else (*components, *saved)
 
@@ -351,7 +353,7 @@ def _quat_to_euler_planar_backward(grad: Tensor, inputs, saved, convention: Eule
     components, saved = saved[:4], saved[4:]
     transposed, terms = _PRODUCT_GRADIENT[convention.name]
     g = columns(grad, share=share)
-    buffer = plane_buffer(len(ANGLE_FORMS), g, share)
+    buffer = plane_buffer(len(ANGLE_FORMS), g, share, output=False)
     g_forms = forms_gradient(g, saved, convention, out=buffer)
     g_products = combinations(g_forms if buffer is None else buffer, transposed, "euler_q_grad_" + convention.name, share=share)
     return (rows(bilinear(g_products, components, terms, out=plane_buffer(4, g_products, share)), share=share),)
@@ -378,7 +380,7 @@ def _matrix_to_euler_columnwise_parts(R: Tensor, convention: EulerConvention, ep
     """The forms from R's entries (eager CPU: one matmul; else one pass per term); the angles, and
     what the closed-form backward needs (``values``: the angles alone, see :func:`angles_parts`)."""
     forms, abcd2 = _matrix_columnwise_forms(R, convention)
-    buffer = plane_buffer(3, forms, MATRIX_TO_EULER_PLANAR_SHARE)
+    buffer = plane_buffer(3, forms, MATRIX_TO_EULER_PLANAR_SHARE, output=False)  # (as above)
     angles, saved = angles_parts(forms, convention, eps, abcd2, out=buffer, values=values)
     return rows(angles if buffer is None else buffer, share=MATRIX_TO_EULER_PLANAR_SHARE), saved
 
@@ -394,7 +396,7 @@ _MATRIX_FORMS_TRANSPOSED = {name: tuple(zip(*DENSE[name][1])) for name in EULER_
 def _matrix_to_euler_columnwise_backward(grad: Tensor, inputs, saved, convention: EulerConvention, eps: float):
     share = MATRIX_TO_EULER_PLANAR_SHARE
     g = columns(grad, share=share)
-    buffer = plane_buffer(len(ANGLE_FORMS), g, share)
+    buffer = plane_buffer(len(ANGLE_FORMS), g, share, output=False)
     g_forms = forms_gradient(g, saved, convention, out=buffer)  # the forms are linear in R
     g_R = rows(g_forms if buffer is None else buffer, _MATRIX_FORMS_TRANSPOSED[convention.name],
                "euler_R_grad_" + convention.name, share=share)

@@ -167,16 +167,18 @@ def _euler_to_quat_with_jacobian(angles: Tensor, convention: EulerConvention):
 EULER_TO_QUAT = jacobian_rule(_euler_to_quat_small, _euler_to_quat_with_jacobian)
 
 
-def _euler_to_quat_columnwise_parts(angles: Tensor, convention: EulerConvention):
+def _euler_to_quat_columnwise_parts(angles: Tensor, convention: EulerConvention, values: bool = False):
     """Column by column (fewer passes; under compile one fused loop): the quaternion, and what the
-    closed-form backward needs (its columns, and the left factor's half-angle cosine and sine)."""
+    closed-form backward needs (its columns, and the left factor's half-angle cosine and sine).
+    ``values``: nothing keeps those (so the columns may be the output rows' own memory, which a
+    caller may write in place; see ``_planes.plane_buffer``)."""
     cs = [(torch.cos(h), torch.sin(h)) for h in columns(angles, HALF_IDENTITY[3], "half3")]
     pairs = [u * v for u in cs[0] for v in cs[1]]
     # the table's row 4 m1 + 2 m2 + m3 is pair 2 m1 + m2 times factor m3 of the third angle:
     # two terms per component (one product of three elementary quaternions)
     q = bilinear(pairs, cs[2], _SIGN_BILINEAR[convention.name])
     sign = torch.copysign(constant("one", 1.0, q[0]), q[0])  # w >= 0 (a where on w < 0 mispredicts)
-    buffer = plane_buffer(4, q)
+    buffer = plane_buffer(4, q, output=values)
     q = [torch.mul(c, sign, out=slot(buffer, i)) for i, c in enumerate(q)]
     return rows(q if buffer is None else buffer), (*q, *cs[_ANGLE_TERMS[convention.name][0]])
 
@@ -225,7 +227,8 @@ def _euler_to_quat_columnwise_backward(grad: Tensor, inputs, saved, convention: 
 
 
 EULER_TO_QUAT_COLUMNWISE = Rule(euler_to_quat_columnwise, _euler_to_quat_columnwise_parts,
-                                 _euler_to_quat_columnwise_backward)
+                                 _euler_to_quat_columnwise_backward,
+                                 lambda angles, convention: _euler_to_quat_columnwise_parts(angles, convention, values=True)[0])
 
 
 def euler_to_matrix_small(angles: Tensor, convention: EulerConvention) -> Tensor:

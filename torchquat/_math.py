@@ -285,17 +285,24 @@ def sparse_columns(table, offset=None):
                  for k in range(len(table[0])))
 
 
-def combine(columns, terms):
+def combine(columns, terms, out=None):
     """``sum_r k_r * columns[r] + offset`` for one :func:`sparse_columns` entry, with the
-    coefficients as Python numbers (literals in a compiled graph)."""
+    coefficients as Python numbers (literals in a compiled graph). ``out``: a tensor the last pass
+    writes into (eager, nothing recording a graph)."""
+    last = len(terms[0]) - (0 if terms[1] else 1)  # (the index of the last pass)
     if terms[0]:
         (first, k), rest = terms[0][0], terms[0][1:]
-        total = columns[first] if k == 1 else columns[first] * k
-        for r, k in rest:  # one pass per term: add and sub take the coefficient as alpha
-            total = torch.sub(total, columns[r], alpha=-k) if k < 0 else torch.add(total, columns[r], alpha=k)
+        if k == 1:
+            total = columns[first] if last else (columns[first] if out is None else out.copy_(columns[first]))
+        else:
+            total = torch.mul(columns[first], k, out=None if last else out)
+        for n, (r, k) in enumerate(rest, 1):  # one pass per term: add and sub take the coefficient as alpha
+            target = out if n == last else None
+            total = (torch.sub(total, columns[r], alpha=-k, out=target) if k < 0
+                     else torch.add(total, columns[r], alpha=k, out=target))
     else:
-        total = torch.zeros_like(columns[0])
-    return total + terms[1] if terms[1] else total
+        total = torch.zeros_like(columns[0]) if out is None else out.zero_()
+    return torch.add(total, terms[1], out=out) if terms[1] else total
 
 
 def bilinear_terms(table, n_b: int):

@@ -10,6 +10,16 @@ identity does the same transposes in 1.3-1.8 ms (4 columns) and 5-6 ms (9): MKL 
 either layout at memory speed. A product with any other constant table (the final linear
 combination of a kernel) costs the same, so :func:`rows` takes one.
 
+That holds for Intel CPUs. On an AMD EPYC (the same torch and MKL) a matrix product whose result
+has rows of a few entries runs 8-15x slower than that (interleaving 4 planes of 65,536 rows: 1.1 ms
+against 0.07 ms for a plain copy of the same bytes; ``torch.stack(planes, -1)`` 0.69 ms), and
+reading rows of 3 into planes 2x slower than ``torch.stack(x.unbind(-1), 0)``, while products
+that write planes stay fast. So each transpose direction and row width is timed once per process
+(:func:`by_matmul`, about 1 ms, or set by ``TORCHQUAT_TRANSPOSES``): where the product loses,
+columns are read by a stack of the rows' entries, and the output is written without one, its
+last passes writing strided columns of the output rows (:func:`plane_buffer`), or by a stack
+along the last dimension.
+
 The identity product is exact for finite numbers (``x * 1 + 0 * y``); it turns ``-0.0`` into
 ``+0.0``, and a row holding an infinity gets NaN in its other columns (``0 * inf``). Both stay
 within what the kernels promise: no rotation has an infinite entry.
@@ -21,8 +31,10 @@ fuses ``unbind`` and ``stack`` into its single loop, and on a GPU a float32 matr
 run in TF32 (10-bit mantissa) when the user allows it, so there the plain ops run.
 """
 
+import os
 import threading
-from typing import Optional, Sequence, Tuple
+import time
+from typing import Dict, Optional, Sequence, Tuple
 
 import torch
 from torch import Tensor
@@ -47,6 +59,79 @@ def _eye(k: int, like: Tensor) -> Tensor:
     return constant(f"eye{k}", _IDENTITIES[k], like)
 
 
+TRANSPOSES_VARIABLE = "TORCHQUAT_TRANSPOSES"
+"""The environment variable that fixes how contiguous columns are transposed: ``matmul`` (products
+with the identity, both directions), ``copy`` (stacks and strided writes), or unset (or ``auto``):
+timed once per process, each direction and row width on its own (:func:`by_matmul`)."""
+
+_BY_MATMUL: Dict[Tuple[str, int], bool] = {}
+_TIMED_ROWS = 16384
+
+
+def _fastest(call) -> float:
+    times = []
+    for _ in range(5):
+        start = time.perf_counter()
+        call()
+        times.append(time.perf_counter() - start)
+    return min(times)
+
+
+def _matmul_wins(direction: str, k: int) -> bool:
+    """Time a product with the identity against a stack, on ``_TIMED_ROWS`` rows of ``k`` float32
+    (fresh tensors, no gradient; the fastest of 5 calls each, about 1 ms in all)."""
+    eye = torch.eye(k)
+    with torch.no_grad():
+        if direction == "rows":  # planes -> rows
+            planes, out = torch.rand(k, _TIMED_ROWS), torch.empty(_TIMED_ROWS, k)
+            by_product = lambda: torch.mm(planes.t(), eye, out=out)  # noqa: E731
+            by_copy = lambda: torch.stack(planes.unbind(0), -1, out=out)  # noqa: E731
+        else:  # rows -> planes
+            x, out = torch.rand(_TIMED_ROWS, k), torch.empty(k, _TIMED_ROWS)
+            by_product = lambda: torch.mm(eye, x.t(), out=out)  # noqa: E731
+            by_copy = lambda: torch.stack(x.unbind(-1), 0, out=out)  # noqa: E731
+        by_product(), by_copy()  # (warm-up)
+        return _fastest(by_product) <= _fastest(by_copy)
+
+
+def by_matmul(direction: str, k: int) -> bool:
+    """Whether contiguous columns are transposed by a matrix product (else by a copy) in
+    ``direction`` (``"columns"``: rows of ``k`` into planes; ``"rows"``: ``k`` planes into rows).
+
+    Fixed by ``TORCHQUAT_TRANSPOSES`` (``matmul`` or ``copy``), else timed once per process and
+    ``(direction, k)`` and kept: on an Intel CPU the product wins both ways, on an AMD EPYC it loses
+    into rows of every width and from rows of 3 (see the module's docstring). The two give the same
+    numbers where no table is applied, but for the identity product's ``-0.0 -> +0.0``; with a table,
+    the same to rounding.
+
+    Example:
+        >>> by_matmul("rows", 4) in (True, False)
+        True
+    """
+    key = (direction, k)
+    choice = _BY_MATMUL.get(key)
+    if choice is None:
+        setting = os.environ.get(TRANSPOSES_VARIABLE, "auto").strip().lower()
+        if setting in ("matmul", "copy"):
+            choice = setting == "matmul"
+        elif setting in ("auto", ""):
+            choice = _timed(direction, k)
+        else:
+            raise ValueError(f"{TRANSPOSES_VARIABLE}={setting!r}: use matmul, copy or auto")
+        _BY_MATMUL[key] = choice
+    return choice
+
+
+def _timed(direction: str, k: int) -> bool:
+    # (outside any dispatch mode or tracer of the caller's: its own small tensors, timed, not recorded)
+    try:
+        from torch.utils._python_dispatch import _disable_current_modes
+    except ImportError:  # pragma: no cover - an older torch: timed as it is
+        return _matmul_wins(direction, k)
+    with _disable_current_modes():
+        return _matmul_wins(direction, k)
+
+
 _lent = threading.local()
 
 
@@ -58,16 +143,24 @@ def lend(out: Optional[Tensor]) -> None:
     _lent.out = out
 
 
+def _borrow(shape, dtype) -> Optional[Tensor]:
+    """The lent tensor, if it has ``shape`` and ``dtype`` (which ends the loan), else ``None``."""
+    out = getattr(_lent, "out", None)
+    if out is None or out.shape != shape or out.dtype != dtype:
+        return None
+    _lent.out = None
+    return out
+
+
 def _to_rows(planes: Tensor, table: Optional[Tensor] = None) -> Tensor:
     """``(k, M) -> (M, k)`` (or ``planes.T @ table``), contiguous, into a lent tensor if it fits."""
-    matrix = _eye(planes.shape[0], planes) if table is None else table
-    out = getattr(_lent, "out", None)
-    if out is not None:
-        if out.shape == (planes.shape[1], matrix.shape[1]) and out.dtype == planes.dtype:
-            _lent.out = None
-        else:
-            out = None
-    return torch.mm(planes.t(), matrix, out=out)
+    m = planes.shape[0] if table is None else table.shape[1]
+    out = _borrow((planes.shape[1], m), planes.dtype)
+    if by_matmul("rows", m):
+        return torch.mm(planes.t(), _eye(m, planes) if table is None else table, out=out)
+    if table is not None:  # (a product that writes planes is fast either way)
+        planes = torch.mm(table.t(), planes)
+    return torch.stack(planes.unbind(0), -1, out=out)
 
 
 def _combined(cols, table, name: str, offset):
@@ -116,8 +209,13 @@ def columns(x: Tensor, table=None, name: str = "", offset=None, share: float = 1
         cols = x.unbind(-1)
         return cols if table is None else _combined(cols, table, name, offset)
     flat = x.reshape(-1, k)
-    matrix = _eye(k, flat) if table is None else constant(name + "^T", tuple(zip(*table)), flat)
-    planes = torch.mm(matrix, flat.t())
+    if by_matmul("columns", k):
+        matrix = _eye(k, flat) if table is None else constant(name + "^T", tuple(zip(*table)), flat)
+        planes = torch.mm(matrix, flat.t())
+    else:
+        planes = torch.stack(flat.unbind(-1), 0)
+        if table is not None:
+            planes = torch.mm(constant(name + "^T", tuple(zip(*table)), flat), planes)
     return _with_offset(planes.view((planes.shape[0],) + x.shape[:-1]).unbind(0), offset)
 
 
@@ -152,13 +250,19 @@ def combinations(cols: Sequence[Tensor], table, name: str, offset=None, share: f
     return _with_offset(out.view((out.shape[0],) + planes.shape[1:]).unbind(0), offset)
 
 
-def plane_buffer(k: int, cols: Sequence[Tensor], share: float = 1.0) -> Optional[Tensor]:
+def plane_buffer(k: int, cols: Sequence[Tensor], share: float = 1.0, output: bool = True) -> Optional[Tensor]:
     """An empty ``(k, *batch)`` tensor for a kernel's last ``k`` columns to be written into (``out=``),
     so that :func:`rows` transposes them without stacking them first (a pass over all of them:
     1.6 ms for 4 columns of 1e6, 4.6 ms for 9). Only on the path of contiguous columns and where
     nothing records a graph (autograd refuses ``out=``, as ``torch.func`` transforms and forward-mode
     AD do): a closed-form rule's forward and backward, and values; ``None`` elsewhere. ``cols``: the columns the planes are computed from (their
-    broadcast batch shape, dtype and device)."""
+    broadcast batch shape, dtype and device).
+
+    ``output``: the buffer goes to :func:`rows` with no table. Where rows are not written by a
+    matrix product (:func:`by_matmul`) it is then a view of the output rows themselves, its planes
+    strided columns (a lent block of the output if one fits), and :func:`rows` returns those rows:
+    the last passes' strided writes cost less than any transpose after them. ``False`` (planes for
+    :func:`combinations`, or for :func:`rows` with a table): always contiguous planes."""
     if torch.compiler.is_compiling() or _transformed():  # (out= has no batching or forward-AD rule)
         return None
     like = max(cols, key=Tensor.numel)
@@ -168,12 +272,38 @@ def plane_buffer(k: int, cols: Sequence[Tensor], share: float = 1.0) -> Optional
     shape = like.shape
     if any(c.shape != shape for c in cols):  # (broadcast_shapes costs 10 us: only when they differ)
         shape = torch.broadcast_shapes(*(c.shape for c in cols))
+    if output and not by_matmul("rows", k):
+        out = _borrow((shape.numel(), k), like.dtype)
+        out = torch.empty(shape + (k,), dtype=like.dtype, device=like.device) if out is None else out.view(shape + (k,))
+        return out.movedim(-1, 0)
     return torch.empty((k,) + shape, dtype=like.dtype, device=like.device)
+
+
+def _of_rows(buffer: Tensor) -> bool:
+    """Whether a filled :func:`plane_buffer` is a view of output rows (its planes strided columns)."""
+    return buffer.dim() > 1 and buffer.shape[0] > 1 and buffer.stride(0) == 1
 
 
 def slot(buffer: Optional[Tensor], i: int) -> Optional[Tensor]:
     """Row ``i`` of a :func:`plane_buffer` (an ``out=`` argument), or ``None`` without one."""
     return None if buffer is None else buffer[i]
+
+
+def _written_out(cols: Sequence[Tensor], table, name: str) -> Tensor:
+    """``stack(cols, -1) @ table`` with no matrix product into rows: each output column summed term
+    by term, its last pass writing a strided column of the rows (into a lent block if one fits);
+    where autograd or a transform records, the sums and one stack."""
+    shape, m = cols[0].shape, len(table[0])
+    if _transformed() or (torch.is_grad_enabled() and any(c.requires_grad for c in cols)):
+        return torch.stack(_combined(cols, table, name, None), -1)
+    out = _borrow((shape.numel(), m), cols[0].dtype)
+    out = torch.empty(shape + (m,), dtype=cols[0].dtype, device=cols[0].device) if out is None else out.view(shape + (m,))
+    terms = _SPARSE.get(name)
+    if terms is None:
+        terms = _SPARSE[name] = sparse_columns(table, None)
+    for j, entry in enumerate(terms):
+        combine(cols, entry, out=out.select(-1, j))
+    return out
 
 
 def rows(cols: Sequence[Tensor], table=None, name: str = "", share: float = 1.0) -> Tensor:
@@ -198,11 +328,23 @@ def rows(cols: Sequence[Tensor], table=None, name: str = "", share: float = 1.0)
                 [ 2., -2.]])
     """
     if isinstance(cols, Tensor):  # a plane_buffer, filled
+        if _of_rows(cols):  # (written in place: the rows themselves)
+            if table is None:
+                return cols.movedim(0, -1)
+            cols = cols.contiguous()
+        if table is not None and not by_matmul("rows", len(table[0])):
+            return _written_out(cols.unbind(0), table, name)
         planes = cols
     elif torch.compiler.is_compiling() or not planar(max(cols, key=Tensor.numel), 1, share):
         if table is not None:  # written out: inductor fuses the sums into its loop, a matmul it would not
             cols = _combined(cols, table, name, None)
         return torch.stack(torch.broadcast_tensors(*cols), -1)
+    elif not by_matmul("rows", len(cols) if table is None else len(table[0])):
+        cols = torch.broadcast_tensors(*cols)
+        if table is not None:
+            return _written_out(cols, table, name)
+        out = _borrow((cols[0].numel(), len(cols)), cols[0].dtype)
+        return torch.stack(cols, -1, out=None if out is None else out.view(cols[0].shape + (len(cols),)))
     else:
         planes = torch.stack(torch.broadcast_tensors(*cols), 0)
     batch = planes.shape[1:]

@@ -198,12 +198,14 @@ def quat_to_axis_angle_unchecked(q: Tensor) -> Tensor:
 # do not); axis_angle_to_quat also takes it for large eager batches, where it is faster.
 
 
-def _axis_angle_to_quat_columnwise_parts(v: Tensor, for_autograd: bool = False):
+def _axis_angle_to_quat_columnwise_parts(v: Tensor, for_autograd: bool = False, values: bool = False):
     """The quaternion column by column, and what the closed-form backward needs. ``for_autograd``
     (the plain forward: double backward, ``torch.func``, compile): Taylor series below
     ``theta^2 < sqrt(eps)``, so that autograd's gradients stay exact there and never see 0 / 0.
     Otherwise nothing differentiates these values: ``sin(x) / x`` of the half angle is exact to
-    rounding down to ``x^2 < eps^2``, where it is 1 (the next term, ``x^2 / 6``, is below rounding)."""
+    rounding down to ``x^2 < eps^2``, where it is 1 (the next term, ``x^2 / 6``, is below rounding).
+    ``values``: nothing keeps the saved parts (the output's columns among them), so those columns
+    may be the output rows' own memory (``_planes.plane_buffer``)."""
     h = columns(v, HALF_IDENTITY[3], "half3")  # v / 2: its norm is the half angle
     x2 = sum_of_squares(h)
     if for_autograd:
@@ -217,7 +219,7 @@ def _axis_angle_to_quat_columnwise_parts(v: Tensor, for_autograd: bool = False):
         sinc = torch.sin(x) / x
     sign = torch.copysign(constant("one", 1.0, cos_half), cos_half)  # (an eager where on a random sign mispredicts)
     s = sinc * sign
-    buffer = plane_buffer(4, h)
+    buffer = plane_buffer(4, h, output=values)
     q = [torch.mul(cos_half, sign, out=slot(buffer, 0))] + [torch.mul(c, s, out=slot(buffer, i)) for i, c in enumerate(h, 1)]
     return rows(q if buffer is None else buffer), (*h, x2, q[0], s)
 
@@ -245,7 +247,7 @@ def _axis_angle_to_quat_columnwise_backward(grad: Tensor, inputs, saved):
 
 _AXIS_ANGLE_TO_QUAT_COLUMNWISE = Rule(_axis_angle_to_quat_columnwise, _axis_angle_to_quat_columnwise_parts,
                                       _axis_angle_to_quat_columnwise_backward,
-                                      lambda v: _axis_angle_to_quat_columnwise_parts(v)[0])
+                                      lambda v: _axis_angle_to_quat_columnwise_parts(v, values=True)[0])
 
 
 def _quat_to_axis_angle_columnwise_parts(q: Tensor, for_autograd: bool = False):
@@ -262,7 +264,7 @@ def _quat_to_axis_angle_columnwise_parts(q: Tensor, for_autograd: bool = False):
         n, inverse = torch.sqrt(n2), torch.reciprocal(w)
     # angle / (2 n), signed by the hemisphere (as the table path, copysign: -0.0 takes -1); rows() doubles it
     m = torch.copysign(torch.where(small, inverse, torch.atan2(n, w) / n), w0)
-    buffer = plane_buffer(3, u)
+    buffer = plane_buffer(3, u, output=False)  # (rows() applies a table)
     v = [torch.mul(c, m, out=slot(buffer, i)) for i, c in enumerate(u)]
     return rows(v if buffer is None else buffer, _DOUBLE, "double3"), (w0, *u, n2, small, m)
 
@@ -286,7 +288,7 @@ def _quat_to_axis_angle_columnwise_backward(grad: Tensor, inputs, saved):
     for a, b in zip(g[1:], u[1:]):
         dot = torch.addcmul(dot, a, b)
     rho = torch.reciprocal(torch.addcmul(n2, w0, w0))  # 1 / (n^2 + w^2)
-    buffer = plane_buffer(4, g)
+    buffer = plane_buffer(4, g, output=False)  # (rows() applies a table)
     g_w0 = torch.where(w0 == 0, constant("zero", 0.0, w0), dot * rho, out=slot(buffer, 0))  # (0 at w0 = 0, as autograd's |w0|)
     # -k / 2 = (m - w0 rho) / n^2 (the series branch: n^2 -> 1, a term below rounding)
     minus_k_dot = torch.addcmul(m, w0, rho, value=-1.0) / torch.where(small, 1.0, n2) * dot

@@ -47,7 +47,7 @@ def _quat_to_matrix_planar_parts(q: Tensor):
     q = columns(q, share=_PLANAR_SHARE)
     inverse = torch.reciprocal(sum_of_squares(q))
     scaled = [c * inverse for c in q]
-    buffer = plane_buffer(len(_PAIRS), q, _PLANAR_SHARE)
+    buffer = plane_buffer(len(_PAIRS), q, _PLANAR_SHARE, output=False)
     products = [torch.mul(q[i], scaled[j], out=slot(buffer, p)) for p, (i, j) in enumerate(_PAIRS)]
     R = rows(products if buffer is None else buffer, _HOMOGENEOUS_PAIRS, "homogeneous_pairs", _PLANAR_SHARE)
     return R.unflatten(-1, (3, 3)), (*q, *scaled)

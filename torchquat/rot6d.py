@@ -64,12 +64,12 @@ def rot6d_to_matrix_unchecked(x: Tensor) -> Tensor:
     return closed_form.apply(_ROT6D, x)
 
 
-def _rot6d_columnwise_parts(x: Tensor, for_autograd: bool = False):
+def _rot6d_columnwise_parts(x: Tensor, for_autograd: bool = False, values: bool = False):
     """The same, column by column: fewer passes for large batches, and one fused vectorised loop
     under ``torch.compile``. Returns the matrix and what the closed-form backward needs; where
     nothing records a graph R's columns are written into one buffer (no stack before the transpose).
     ``for_autograd``: keep ``rsqrt`` away from 0 in the rows ``where`` drops (its gradient there
-    would be NaN times 0)."""
+    would be NaN times 0). ``values``: nothing keeps the saved parts (R's columns among them)."""
     a = columns(x, share=_PLANAR_SHARE)
     a1, a2 = a[:3], a[3:]
     r2 = sum_of_squares(a1)
@@ -84,7 +84,8 @@ def _rot6d_columnwise_parts(x: Tensor, for_autograd: bool = False):
     valid = n2 > noise
     inv2 = torch.where(valid, torch.rsqrt(torch.where(valid, n2, 1.0) if for_autograd else n2), torch.nan)
     inv1 = torch.where(valid, torch.rsqrt(r2), torch.nan)
-    buffer = plane_buffer(9, a, _PLANAR_SHARE)  # R row-major: b_k's entry i at 3 i + k
+    # R row-major: b_k's entry i at 3 i + k (in R's own memory only where no backward keeps the b_k)
+    buffer = plane_buffer(9, a, _PLANAR_SHARE, output=values)
     b1 = [torch.mul(c, inv1, out=slot(buffer, 3 * i)) for i, c in enumerate(a1)]
     b2 = [torch.mul(c, inv2, out=slot(buffer, 3 * i + 1)) for i, c in enumerate(b2)]
     b3 = [torch.addcmul(b1[i] * b2[j], b1[j], b2[i], value=-1.0, out=slot(buffer, 3 * k + 2))
@@ -126,7 +127,7 @@ def _rot6d_columnwise_backward(grad: Tensor, inputs, saved):
 
 
 _ROT6D_COLUMNWISE = Rule(_rot6d_columnwise, _rot6d_columnwise_parts, _rot6d_columnwise_backward,
-                         lambda x: _rot6d_columnwise_parts(x)[0])
+                         lambda x: _rot6d_columnwise_parts(x, values=True)[0])
 
 
 def rot6d_to_matrix(x: Tensor) -> Tensor:

@@ -94,6 +94,28 @@ def _callable(impl: _ops.Impl, inputs, backward: bool, seed: int):
     return step
 
 
+def _cpu_model() -> str:
+    """The CPU's model name (Linux: /proc/cpuinfo; elsewhere ``platform.processor()``), or ``""``."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as stream:
+            for line in stream:
+                if line.lower().startswith("model name"):
+                    return line.partition(":")[2].strip()
+    except OSError:
+        pass
+    return platform.processor() or ""
+
+
+def _transposes() -> str:
+    """How the large eager batches were transposed in this run (``torchquat._planes.by_matmul``)."""
+    from .._planes import TRANSPOSES_VARIABLE, _BY_MATMUL
+
+    made = ", ".join(f"{direction} of {k}: {'matmul' if by_matmul else 'copy'}"
+                     for (direction, k), by_matmul in sorted(_BY_MATMUL.items()))
+    setting = os.environ.get(TRANSPOSES_VARIABLE, "auto") or "auto"
+    return f"transposes of large eager batches ({TRANSPOSES_VARIABLE}={setting}): {made or 'none made'}"
+
+
 def _unique(values) -> list:
     """``values`` in order, each once."""
     return list(dict.fromkeys(values))
@@ -264,7 +286,7 @@ def run(args: argparse.Namespace) -> int:
     elapsed = time.perf_counter() - started
 
     import torchquat
-    where = (f"{threads} thread(s), {platform.machine()} {platform.processor() or ''} ({os.cpu_count()} CPUs)" if on_host
+    where = (f"{threads} thread(s), {platform.machine()} {_cpu_model()} ({os.cpu_count()} CPUs)" if on_host
              else f"{device.type} device {torch.cuda.get_device_name(device) if device.type == 'cuda' else device}")
     header = [
         "## torchquat bench",
@@ -275,6 +297,7 @@ def run(args: argparse.Namespace) -> int:
         f"measurements); at N <= 10,000 the fastest such median of {rounds} round-robin round(s) over the "
         "implementations; fwd+bwd = the call plus torch.autograd.grad with a preallocated output gradient.",
         allocator,
+        _transposes(),
         "Peers: " + (", ".join(f"{p.name} {p.version} (import {p.import_s:.2f} s)" for p in active) or "none"),
     ]
     if stopped:
@@ -320,7 +343,8 @@ def run(args: argparse.Namespace) -> int:
         meta = {"torchquat": torchquat.__version__, "torch": torch.__version__, "dtype": str(dtype),
                 "threads": threads, "device": str(device), "ns": ns, "compiled": compiled, "min_run_time": min_run_time, "allocator": allocator,
                 "floor_definition": _timing.FLOOR_DEFINITION, "machine": platform.platform(),
-                "cpus": os.cpu_count(), "python": platform.python_version(), "elapsed_s": elapsed,
+                "cpus": os.cpu_count(), "cpu": _cpu_model(), "transposes": _transposes(),
+                "python": platform.python_version(), "elapsed_s": elapsed,
                 "peers": {p.name: {"version": p.version, "import_s": p.import_s, "error": p.error} for p in peers},
                 "stopped_by": stopped, "finished": done, "planned": total}
         try:
