@@ -209,13 +209,14 @@ def test_rot9d_batched_jacobians_equal_the_unbatched_ones():
 
 
 def test_rot9d_gradient_at_a_zero_matrix_is_finite():
-    # a zero-initialised rot9d head (documented: the identity) must still train; the relative floor
-    # of s_i + s_j was 0 there (0 / 0)
+    # A zero matrix has no nearest rotation (NaN, as a zero quaternion); its gradient stays finite,
+    # and so do its neighbours' in a batch: the relative floor of s_i + s_j was 0 there (0 / 0)
     # (then a floor of the smallest normal number gave gradients of 1e307, inf at random: the
     # floor is 1 for a zero matrix, as for a unit-scale one)
     for dtype in (torch.float32, torch.float64):
         M = torch.zeros(2, 3, 3, dtype=dtype, requires_grad=True)
         R = tq.rot9d_to_matrix(M)
+        assert R.isnan().all()
         G = 10.0 * torch.randn(2, 3, 3, dtype=dtype, generator=torch.Generator().manual_seed(1))
         (g,) = torch.autograd.grad((R * G).sum(), M)
         assert torch.isfinite(g).all() and g.abs().max() <= 4 * G.abs().max()

@@ -118,3 +118,107 @@ def test_degenerate_input_gives_nan_never_a_plausible_rotation():
     # nearly but not exactly collinear is a real rotation
     R = tq.rot6d_to_matrix(torch.tensor([1.0, 0.0, 0.0, 1.0, 1e-3, 0.0], dtype=torch.float64))
     assert torch.allclose(R, torch.eye(3, dtype=torch.float64))
+
+
+# --- found by an audit of the functions against the contract (session 18) ---
+
+def test_rot9d_of_rank_0_or_1_is_nan_not_a_plausible_rotation():
+    # every rotation that keeps a rank-1 matrix's one direction is as near: none is the answer
+    # (a zero matrix gave the identity, a rank-1 one an arbitrary rotation, with no sign of it)
+    for dtype in (torch.float32, torch.float64):
+        rank2 = torch.diag(torch.tensor([2.0, 1.0, 0.0], dtype=dtype))
+        rank1 = torch.outer(torch.tensor([1.0, 2.0, 3.0], dtype=dtype), torch.tensor([0.5, -1.0, 2.0], dtype=dtype))
+        M = torch.stack([torch.zeros(3, 3, dtype=dtype), rank1, rank1 + 1e-16 * rank2, rank2,
+                         torch.tensor([[0.0, -2.0, 0.0], [3.0, 0.0, 0.0], [0.0, 0.0, 0.5]], dtype=dtype)])
+        leaf = M.clone().requires_grad_()
+        R = tq.rot9d_to_matrix(leaf)
+        assert R[:3].isnan().all() and torch.isfinite(R[3:]).all()
+        torch.testing.assert_close(R[3], torch.eye(3, dtype=dtype))  # (rank 2: still one nearest rotation)
+        (g,) = torch.autograd.grad(R[3:].sum(), leaf)
+        assert torch.isfinite(g).all() and (g[:3] == 0).all()  # (each row its own)
+        assert tq.convert(M[:1], "rot9d", "quat").isnan().all()
+
+
+@pytest.mark.parametrize("fn", [
+    lambda eps: tq.quat_to_euler(torch.tensor([1.0, 0, 0, 0]), "ZYX", eps=eps),
+    lambda eps: tq.matrix_to_euler(torch.eye(3), "ZYX", eps=eps),
+    lambda eps: tq.euler_gimbal_lock(torch.tensor([1.0, 0, 0, 0]), "ZYX", eps=eps),
+    lambda eps: tq.convert(torch.tensor([1.0, 0, 0, 0]), "quat", "euler:ZYX", eps=eps),
+], ids=["quat_to_euler", "matrix_to_euler", "euler_gimbal_lock", "convert"])
+def test_eps_out_of_range_is_refused_naming_the_function(fn):
+    # inf gave "math domain error"; NaN and negative values switched the lock rule off silently, and
+    # eps above pi/2 is no threshold (the test compares sines: 3.2 never found a lock)
+    name = ["quat_to_euler", "matrix_to_euler", "euler_gimbal_lock", "convert"]
+    for eps in (float("inf"), float("nan"), -1e-6, 1.6):
+        with pytest.raises(ValueError, match=r"^\w+: expected eps between 0 and pi/2 radians") as err:
+            fn(eps)
+        assert str(err.value).split(":")[0] in name
+    with pytest.raises(TypeError, match="expected eps to be a number of radians, got 'a'"):
+        fn("a")
+    for eps in (0.0, 1e-3, torch.pi / 2):  # (the range's ends included)
+        fn(eps)
+
+
+def test_distinct_eps_values_do_not_grow_the_constant_cache():
+    import torchquat._math as tqmath
+
+    q = tq.random_quat(5, generator=torch.Generator().manual_seed(0))
+    tq.quat_to_euler(q, "ZYX"), tq.quat_to_euler(q, "ZYX", eps=1e-3)
+    before = len(tqmath._CONSTANTS)
+    for k in range(200):  # (one cached tensor per value: 10,006 after 5,000 values)
+        tq.quat_to_euler(q, "ZYX", eps=1e-4 * (k + 1))
+        tq.euler_gimbal_lock(q, "ZYX", eps=1e-4 * (k + 1))
+    assert len(tqmath._CONSTANTS) == before
+
+
+def test_list_and_numpy_inputs_whose_shape_decides_the_form():
+    import numpy as np
+
+    m = [[0.0, -2.0, 0.0], [3.0, 0.0, 0.0], [0.0, 0.0, 0.5]]
+    expected = tq.rot9d_to_matrix(torch.tensor(m))
+    for x in (m, np.array(m), np.array(m).reshape(9), sum(m, [])):  # (NumPy's float64 stays float64)
+        torch.testing.assert_close(tq.rot9d_to_matrix(x).float(), expected)
+    torch.testing.assert_close(tq.convert(np.array(m), "rot9d", "matrix").float(), expected)
+    assert tq.euler_gimbal_lock(np.eye(3), "ZYX").shape == () and tq.euler_gimbal_lock([1.0, 0, 0, 0], "ZYX").shape == ()
+
+
+def test_convert_checks_euler_options_wherever_they_are_given():
+    # generic code may pass a convention to every conversion (ignored where no Euler angles are
+    # involved), but a misspelt one, or an eps out of range, was accepted there silently
+    q = torch.tensor([1.0, 0.0, 0.0, 0.0])
+    torch.testing.assert_close(tq.convert(q, "quat", "matrix", convention="ZYX", degrees=True, eps=1e-3), torch.eye(3))
+    with pytest.raises(tq.ConventionError, match="^convert: invalid convention 'bogus'"):
+        tq.convert(q, "quat", "matrix", convention="bogus")
+    with pytest.raises(ValueError, match="^convert: expected eps between 0 and pi/2"):
+        tq.convert(q, "quat", "matrix", eps=-3)
+    for fn in (lambda d: tq.euler_to_quat(torch.zeros(3), "ZYX", degrees=d),
+               lambda d: tq.quat_to_euler(q, "ZYX", degrees=d), lambda d: tq.convert(torch.zeros(3), "euler:ZYX", "quat", degrees=d)):
+        with pytest.raises(ValueError, match="expected degrees to be True or False, got 'False'"):
+            fn("False")  # (a string: it was truthy, so degrees)
+        fn(0), fn(True)
+
+
+def test_slerp_t_and_devices_are_named_in_errors():
+    q = torch.tensor([1.0, 0.0, 0.0, 0.0])
+    for t in ("a", None, 1j):
+        with pytest.raises(TypeError, match="^quat_slerp: expected t to be a number"):
+            tq.quat_slerp(q, q, t)
+    meta = torch.empty(4, device="meta")
+    for fn in (tq.quat_multiply, tq.quat_geodesic_distance, lambda a, b: tq.quat_slerp(a, b, 0.5)):
+        with pytest.raises(RuntimeError, match=r"^\w+: expected \w+ and \w+ on one device, got cpu and meta"):
+            fn(q, meta)
+    with pytest.raises(RuntimeError, match="^quat_rotate: expected q and v on one device"):
+        tq.quat_rotate(q, torch.empty(3, device="meta"))
+
+
+def test_factories_take_numpy_sizes_and_refuse_non_float_dtypes():
+    import numpy as np
+
+    assert tq.random_quat(np.int64(3)).shape == (3, 4) and tq.quat_identity(np.int64(2)).shape == (2, 4)
+    assert tq.random_quat((np.int64(2), 3)).shape == (2, 3, 4)
+    for fn in (tq.random_quat, tq.quat_identity):
+        for dtype in (torch.int64, torch.complex64, torch.bool):
+            with pytest.raises(TypeError, match=r"^\w+: expected a floating-point dtype"):
+                fn(3, dtype=dtype)
+        with pytest.raises(TypeError, match="expected shape to be an int or a sequence of ints"):
+            fn(2.5)

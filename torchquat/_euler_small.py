@@ -29,7 +29,9 @@ from ._euler_forms import forms_tables
 from . import _closed_form as closed_form
 from ._closed_form import Rule
 from ._math import constant, norm_twice_differentiable, outer_product, zero_to_inf
-from .conventions import EULER_CONVENTIONS, EulerConvention
+from .conventions import EULER_CONVENTIONS, EulerConvention, gimbal_eps
+
+_DEFAULT_EPS = (gimbal_eps(torch.float32), gimbal_eps(torch.float64))
 
 # (form, sign) of each pair's y and x; forms are numbered as in _euler_forms
 _LAYOUT = ((0, 1.0), (1, 1.0), (2, -1.0), (3, -1.0), (4, -1.0), (5, -1.0), (12, 1.0), (13, 1.0))
@@ -87,7 +89,9 @@ def lock(forms: Tensor, eps: float, differentiable_twice: bool = False):
     else:
         two_h = torch.linalg.vector_norm(pair, dim=-1)  # |t1's pair|; its gradient is 0 at h = 0
     threshold = math.sin(eps)
-    if not torch.compiler.is_compiling():  # (under compile eps may be symbolic: no cache key)
+    # The defaults as cached tensors (a Python number costs 1 us more a call); other values are not
+    # kept (one cached tensor per value grew without bound). Under compile eps may be symbolic.
+    if not torch.compiler.is_compiling() and eps in _DEFAULT_EPS:
         threshold = constant(f"sin_eps_{eps!r}", threshold, forms)
     return two_h, two_h <= threshold
 

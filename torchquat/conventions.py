@@ -12,6 +12,7 @@ axis-angle             ``(..., 3)``: unit axis times angle (rotation vector)
 =====================  ==========================================================================
 """
 
+import math
 from itertools import permutations
 from typing import Dict, NamedTuple
 
@@ -19,7 +20,7 @@ import torch
 
 from .errors import ConventionError
 
-__all__ = ["EulerConvention", "EULER_CONVENTIONS", "parse_convention", "gimbal_eps"]
+__all__ = ["EulerConvention", "EULER_CONVENTIONS", "parse_convention", "gimbal_eps", "gimbal_threshold", "check_degrees"]
 
 QUAT_LAYOUT = "wxyz"
 AXIS_INDEX = {"x": 0, "y": 1, "z": 2}
@@ -67,3 +68,26 @@ def parse_convention(convention, fn: str) -> EulerConvention:
 def gimbal_eps(dtype: torch.dtype) -> float:
     """Default gimbal-lock threshold (radians): 1e-7 in float64, 1e-6 in float32 and below."""
     return 1e-7 if dtype == torch.float64 else 1e-6
+
+
+def check_degrees(fn: str, degrees) -> bool:
+    """``degrees`` as a bool: ``True`` or ``False`` (or 1, 0, NumPy's bools), else ``ValueError``
+    naming ``fn`` (the string ``"False"`` would be true)."""
+    if isinstance(degrees, (str, bytes)) or degrees not in (True, False):
+        raise ValueError(f"{fn}: expected degrees to be True or False, got {degrees!r}")
+    return bool(degrees)
+
+
+def gimbal_threshold(fn: str, eps, dtype: torch.dtype) -> float:
+    """``eps`` as a float of radians (the default for ``dtype`` when ``None``), checked: a number
+    from 0 to pi/2 (the lock test compares sines, which grow only that far), else ``TypeError`` or
+    ``ValueError`` naming ``fn``."""
+    if eps is None:
+        return gimbal_eps(dtype)
+    try:
+        value = float(eps)
+    except (TypeError, ValueError):
+        raise TypeError(f"{fn}: expected eps to be a number of radians, got {eps!r}") from None
+    if not 0.0 <= value <= math.pi / 2:  # (NaN fails too)
+        raise ValueError(f"{fn}: expected eps between 0 and pi/2 radians, got {eps!r}")
+    return value

@@ -29,8 +29,8 @@ from ._euler_rotations import (EULER_TO_MATRIX, EULER_TO_QUAT, EULER_TO_QUAT_COL
                                euler_to_quat_columnwise)
 from ._math import combine, constant, is_small, literal
 from ._planes import columns, planar
-from ._validation import prepare, restore
-from .conventions import EulerConvention, gimbal_eps, parse_convention
+from ._validation import prepare, restore, tensor_or_as_is
+from .conventions import EulerConvention, check_degrees, gimbal_threshold, parse_convention
 from .errors import ShapeError
 from .matrix import quat_to_matrix_unchecked
 
@@ -83,7 +83,7 @@ def euler_to_quat(angles: Tensor, convention: str, degrees: bool = False) -> Ten
     """
     conv = parse_convention(convention, "euler_to_quat")
     angles, dtype = prepare(angles, "euler_to_quat", "angles", (3,))
-    return restore(euler_to_quat_unchecked(to_radians(angles, degrees), convention=conv), dtype)
+    return restore(euler_to_quat_unchecked(to_radians(angles, check_degrees("euler_to_quat", degrees)), convention=conv), dtype)
 
 
 @kernel(blocked_row_dims=(1,), compiled_from_rows=256)
@@ -121,7 +121,7 @@ def euler_to_matrix(angles: Tensor, convention: str, degrees: bool = False) -> T
     """
     conv = parse_convention(convention, "euler_to_matrix")
     angles, dtype = prepare(angles, "euler_to_matrix", "angles", (3,))
-    return restore(euler_to_matrix_unchecked(to_radians(angles, degrees), convention=conv), dtype)
+    return restore(euler_to_matrix_unchecked(to_radians(angles, check_degrees("euler_to_matrix", degrees)), convention=conv), dtype)
 
 
 @kernel(blocked_row_dims=(1,))
@@ -209,8 +209,8 @@ def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Option
     """
     conv = parse_convention(convention, "quat_to_euler")
     q, dtype = prepare(q, "quat_to_euler", "q", (4,))
-    angles = quat_to_euler_unchecked(q, convention=conv, eps=gimbal_eps(q.dtype) if eps is None else float(eps))
-    return restore(to_degrees(angles, degrees), dtype)
+    angles = quat_to_euler_unchecked(q, convention=conv, eps=gimbal_threshold("quat_to_euler", eps, q.dtype))
+    return restore(to_degrees(angles, check_degrees("quat_to_euler", degrees)), dtype)
 
 
 @kernel(blocked_row_dims=(2,))
@@ -248,8 +248,8 @@ def matrix_to_euler(R: Tensor, convention: str, degrees: bool = False, eps: Opti
     """
     conv = parse_convention(convention, "matrix_to_euler")
     R, dtype = prepare(R, "matrix_to_euler", "R", (3, 3))
-    angles = matrix_to_euler_unchecked(R, convention=conv, eps=gimbal_eps(R.dtype) if eps is None else float(eps))
-    return restore(to_degrees(angles, degrees), dtype)
+    angles = matrix_to_euler_unchecked(R, convention=conv, eps=gimbal_threshold("matrix_to_euler", eps, R.dtype))
+    return restore(to_degrees(angles, check_degrees("matrix_to_euler", degrees)), dtype)
 
 
 def euler_gimbal_lock(q: Tensor, convention: str, eps: Optional[float] = None) -> Tensor:
@@ -282,11 +282,12 @@ def euler_gimbal_lock(q: Tensor, convention: str, eps: Optional[float] = None) -
         tensor(False)
     """
     conv = parse_convention(convention, "euler_gimbal_lock")
+    q = tensor_or_as_is(q)  # (lists and NumPy arrays, as everywhere: read before the shape decides)
     is_matrix = isinstance(q, Tensor) and q.dim() >= 2 and tuple(q.shape[-2:]) == (3, 3)
     try:
         x, _ = prepare(q, "euler_gimbal_lock", "q", (3, 3) if is_matrix else (4,))
     except ShapeError:
         raise ShapeError("euler_gimbal_lock: expected q of shape (..., 4) or (..., 3, 3), "
                          f"got {tuple(torch.as_tensor(q).shape)}") from None
-    eps = gimbal_eps(x.dtype) if eps is None else float(eps)
+    eps = gimbal_threshold("euler_gimbal_lock", eps, x.dtype)
     return (matrix_gimbal_lock_unchecked if is_matrix else quat_gimbal_lock_unchecked)(x, convention=conv, eps=eps)

@@ -7,7 +7,8 @@ a quaternion from another representation standardise to ``w >= 0``.
 """
 
 import math
-from typing import Optional, Sequence, Union
+import operator
+from typing import Optional, Sequence, Tuple, Union
 
 import torch
 from torch import Tensor
@@ -246,6 +247,22 @@ def rotate_unchecked(q: Tensor, v: Tensor) -> Tensor:
     return v + w * t + torch.linalg.cross(u, t, dim=-1)
 
 
+def _factory_arguments(fn: str, shape, dtype) -> Tuple[Tuple[int, ...], torch.dtype]:
+    """``shape`` as a tuple (an integer of any kind, NumPy's included, or a sequence of them) and
+    ``dtype`` (the default dtype for ``None``), a floating-point one, else ``TypeError`` naming ``fn``."""
+    try:
+        shape = (operator.index(shape),)
+    except TypeError:
+        try:
+            shape = tuple(operator.index(n) for n in shape)
+        except TypeError:
+            raise TypeError(f"{fn}: expected shape to be an int or a sequence of ints, got {shape!r}") from None
+    dtype = torch.get_default_dtype() if dtype is None else dtype
+    if not isinstance(dtype, torch.dtype) or not dtype.is_floating_point:
+        raise TypeError(f"{fn}: expected a floating-point dtype, got {dtype!r}")
+    return shape, dtype
+
+
 def quat_identity(shape: Union[int, Sequence[int]] = (), *, dtype=None, device=None) -> Tensor:
     """Identity quaternions ``(1, 0, 0, 0)``.
 
@@ -257,7 +274,7 @@ def quat_identity(shape: Union[int, Sequence[int]] = (), *, dtype=None, device=N
         tensor([[1., 0., 0., 0.],
                 [1., 0., 0., 0.]])
     """
-    shape = (shape,) if isinstance(shape, int) else tuple(shape)
+    shape, dtype = _factory_arguments("quat_identity", shape, dtype)
     q = torch.zeros(shape + (4,), dtype=dtype, device=device)
     q[..., 0] = 1.0  # a fresh tensor we own: writing into it changes no input
     return q
@@ -284,8 +301,7 @@ def random_quat(shape: Union[int, Sequence[int]] = (), *, generator=None, dtype=
         >>> bool(torch.allclose(q.norm(dim=-1), torch.ones(1000)))
         True
     """
-    shape = (shape,) if isinstance(shape, int) else tuple(shape)
-    dtype = torch.get_default_dtype() if dtype is None else dtype
+    shape, dtype = _factory_arguments("random_quat", shape, dtype)
     work = torch.float32 if dtype in (torch.float16, torch.bfloat16) else dtype
     u = torch.rand(shape + (3,), generator=generator, dtype=work, device=device)
     u1, u2, u3 = u.unbind(-1)

@@ -11,9 +11,9 @@ from typing import Callable, Dict, NamedTuple, Optional, Tuple
 
 from torch import Tensor
 
-from ._validation import prepare, restore
+from ._validation import prepare, restore, tensor_or_as_is
 from .axis_angle import axis_angle_to_quat_unchecked, quat_to_axis_angle_unchecked
-from .conventions import gimbal_eps, parse_convention
+from .conventions import check_degrees, gimbal_eps, gimbal_threshold, parse_convention
 from .euler import euler_to_quat_unchecked, quat_to_euler_unchecked, to_degrees, to_radians
 from .errors import ConventionError, ShapeError
 from .matrix import matrix_to_quat_unchecked, quat_to_matrix_unchecked
@@ -146,10 +146,19 @@ def convert(x: Tensor, src: str, dst: str, *, convention: Optional[str] = None, 
         >>> convert(torch.tensor([90., 0., 0.]), "euler:ZYX", "axis_angle", degrees=True)
         tensor([0.0000, 0.0000, 1.5708])
     """
+    degrees = check_degrees("convert", degrees)
     src_rep, src_conv = parse_representation(src, "convert", convention)
     dst_rep, dst_conv = parse_representation(dst, "convert", convention)
+    # Options no Euler angles use are ignored (generic code may pass them to every conversion),
+    # but checked: a misspelt convention or an eps out of range is an error wherever it is given.
+    if convention is not None and src_conv is None and dst_conv is None:
+        parse_convention(convention, "convert")
+    if eps is not None:
+        eps = gimbal_threshold("convert", eps, None)  # (its dtype's default is not used)
     shape = src_rep.shape
     # (the last dimension first: comparing a symbolic batch size with 3 would guard it under export)
+    if src_rep.name == "rot9d":
+        x = tensor_or_as_is(x)  # (a list or NumPy 3 x 3 matrix, read before its shape decides)
     if src_rep.name == "rot9d" and isinstance(x, Tensor) and x.dim() >= 2 and x.shape[-1] == 3 and x.shape[-2] == 3:
         x = x.flatten(-2)
     try:

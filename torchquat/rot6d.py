@@ -10,7 +10,7 @@ from ._closed_form import Rule, _transformed, autocast_device
 from ._dispatch import kernel
 from ._math import constant, is_small, matmul3, sum_of_squares
 from ._planes import columns, plane_buffer, rows, slot
-from ._validation import prepare, restore
+from ._validation import prepare, restore, tensor_or_as_is
 from .errors import ShapeError
 
 __all__ = ["rot6d_to_matrix", "matrix_to_rot6d", "rot9d_to_matrix"]
@@ -332,15 +332,22 @@ def rot9d_to_matrix_unchecked(M: Tensor) -> Tensor:
     # LAPACK's SVD raises on NaN/inf: give such rows the identity, then NaN, never a crash.
     finite = torch.isfinite(M).all(-1, keepdim=True).all(-2, keepdim=True)
     eye = torch.eye(3, dtype=M.dtype, device=M.device)
-    R = _projection().apply(torch.where(finite, M, eye))[0]
-    return torch.where(finite, R, torch.nan)
+    R, _, S, _ = _projection().apply(torch.where(finite, M, eye))
+    # Rank 1 or 0 to rounding (the zero matrix among them): every rotation that maps M's one
+    # direction onto itself is as near, so none is the answer: NaN, as for a zero quaternion or
+    # collinear 6D vectors (a rank-2 matrix still has one nearest rotation). The bound is the SVD's
+    # rounding noise, as 6D's collinearity test.
+    independent = S[..., 1] > 16.0 * torch.finfo(M.dtype).eps * S[..., 0]
+    return torch.where(finite & independent[..., None, None], R, torch.nan)
 
 
 def rot9d_to_matrix(x: Tensor) -> Tensor:
     """The rotation nearest to any 3x3 matrix (special orthogonal Procrustes, Levinson et al. 2020).
 
     ``R = U diag(1, 1, det(U V^T)) V^T`` from the SVD ``x = U S V^T``: the closest rotation in
-    Frobenius norm, always det +1. The backward pass is closed-form and stays finite when
+    Frobenius norm, always det +1. A matrix of rank 1 or 0 to rounding (second singular value at
+    most ``16 eps`` times the first; the zero matrix among them) has no single nearest rotation
+    and gives NaN. The backward pass is closed-form and stays finite when
     singular values coincide (autograd through ``svd`` does not). Second and higher derivatives
     are exact (double backward, ``torch.func.hessian``, ``jacrev(jacrev(...))``,
     ``jacrev(jacfwd(...))``); forward mode over forward mode raises.
@@ -360,6 +367,7 @@ def rot9d_to_matrix(x: Tensor) -> Tensor:
                 [ 1.,  0.,  0.],
                 [ 0.,  0.,  1.]])
     """
+    x = tensor_or_as_is(x)  # (lists and NumPy arrays, as everywhere: read before the shape decides)
     if isinstance(x, Tensor) and x.dim() >= 1 and x.shape[-1] == 9:
         x, dtype = prepare(x, "rot9d_to_matrix", "x", (9,))
         x = x.unflatten(-1, (3, 3))

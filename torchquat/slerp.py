@@ -231,7 +231,11 @@ def quat_slerp(q0: Tensor, q1: Tensor, t: Union[float, Tensor]) -> Tensor:
             raise TypeError(f"quat_slerp: expected t to be a number or a floating-point tensor, got dtype {t.dtype}")
         t = t.to(device=q0.device, dtype=q0.dtype)
     else:  # a sequence of numbers
-        t = torch.as_tensor(t, dtype=q0.dtype, device=q0.device)
+        try:
+            t = torch.as_tensor(t, dtype=q0.dtype, device=q0.device)
+        except (TypeError, ValueError, RuntimeError):
+            raise TypeError(f"quat_slerp: expected t to be a number, numbers or a floating-point tensor, "
+                            f"got {t!r}") from None
     if t.dim() > 0:  # (a number always broadcasts)
         check_broadcast("quat_slerp", ("q0", "q1", "t"), (q0, q1, t), (1, 1, 0))
     return restore(quat_slerp_unchecked(q0, q1, t), dtype)

@@ -43,10 +43,10 @@ class RotationHead(nn.Module):
     output's norm, stays below about 1e19, where its square overflows in float32); NaN or inf
     outputs (from NaN features, or features so large that the linear layer overflows, near 3e38
     in float32) give NaN rotations (never an exception). An output that is exactly zero is no
-    rotation for ``"quat"`` and ``"rot6d"`` (a zero quaternion, collinear columns): NaN, as is a
-    ``"rot6d"`` output whose two halves are collinear or whose second half is zero; so do not
-    initialise such a head's weight and bias to zero (``"rot9d"``, ``"axis_angle"`` and
-    ``"euler"`` give the identity there).
+    rotation for ``"quat"``, ``"rot6d"`` and ``"rot9d"`` (a zero quaternion, collinear columns, a
+    matrix of rank 0): NaN, as is a ``"rot6d"`` output whose two halves are collinear or whose
+    second half is zero, and a ``"rot9d"`` output of rank 1; so do not initialise such a head's
+    weight and bias to zero (``"axis_angle"`` and ``"euler"`` give the identity there).
 
     Args:
         in_features: size of the last dimension of the input features.

@@ -5,6 +5,7 @@ from typing import Optional
 import torch
 from torch import Tensor, nn
 
+from ..conventions import check_degrees
 from ..errors import ShapeError
 from ..quaternion import quat_rotate
 from ..registry import convert, parse_conversion
@@ -53,9 +54,7 @@ class Convert(nn.Module):
             self.src, self.dst = f"euler:{src_conv.name}", f"euler:{dst_conv.name}"
         elif src_conv is not None or dst_conv is not None:
             self.convention = (src_conv or dst_conv).name
-        if degrees not in (True, False):  # ("no" would be true)
-            raise ValueError(f"Convert: expected degrees to be True or False, got {degrees!r}")
-        self.degrees = bool(degrees)
+        self.degrees = check_degrees("Convert", degrees)  # ("no" would be true)
         self._src_shape = src_rep.shape
 
     def forward(self, x: Tensor) -> Tensor:
