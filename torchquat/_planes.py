@@ -166,14 +166,15 @@ def _to_rows(planes: Tensor, table: Optional[Tensor] = None) -> Tensor:
     return out.copy_(planes.t())
 
 
-def _combined(cols, table, name: str, offset):
-    """``combine`` of each column of ``table``: one pass per term (fused under compile)."""
+def _combined(cols, table, name: str, offset, out: Optional[Tensor] = None):
+    """``combine`` of each column of ``table``: one pass per term (fused under compile); ``out``:
+    a tensor whose last dimension's entries the columns' last passes write (eager, no graph)."""
     terms = None if torch.compiler.is_compiling() else _SPARSE.get(name)
     if terms is None:
         terms = sparse_columns(table, offset)
         if not torch.compiler.is_compiling():
             _SPARSE[name] = terms
-    return tuple(combine(cols, t) for t in terms)
+    return tuple(combine(cols, t, out=None if out is None else out.select(-1, j)) for j, t in enumerate(terms))
 
 
 def _with_offset(planes, offset):
@@ -301,11 +302,7 @@ def _written_out(cols: Sequence[Tensor], table, name: str) -> Tensor:
         return torch.stack(_combined(cols, table, name, None), -1)
     out = _borrow((shape.numel(), m), cols[0].dtype)
     out = torch.empty(shape + (m,), dtype=cols[0].dtype, device=cols[0].device) if out is None else out.view(shape + (m,))
-    terms = _SPARSE.get(name)
-    if terms is None:
-        terms = _SPARSE[name] = sparse_columns(table, None)
-    for j, entry in enumerate(terms):
-        combine(cols, entry, out=out.select(-1, j))
+    _combined(cols, table, name, None, out=out)
     return out
 
 
