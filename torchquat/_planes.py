@@ -15,7 +15,7 @@ has rows of a few entries is slower than any copy (interleaving 4 planes of 65,5
 against 0.53 ms for ``out.copy_(planes.t())`` and 0.03 ms for a plain copy of the same bytes), and
 reading rows of 3 into planes 2.5x slower than ``torch.stack(x.unbind(-1), 0)``, while products
 that write planes stay fast. So each transpose direction and row width is timed once per process
-(:func:`by_matmul`, about 1 ms, or set by ``TORCHQUAT_TRANSPOSES``): where the product loses,
+(:func:`by_matmul`, 3-11 ms each on the EPYC, or set by ``TORCHQUAT_TRANSPOSES``): where the product loses,
 columns are read by a stack of the rows' entries, and the output is written without a product:
 the last passes write strided columns of the output rows (:func:`plane_buffer`), or planes are
 copied transposed, or (where autograd records) stacked along the last dimension.
@@ -79,7 +79,7 @@ def _fastest(call) -> float:
 
 def _matmul_wins(direction: str, k: int) -> bool:
     """Time a product with the identity against a stack, on ``_TIMED_ROWS`` rows of ``k`` float32
-    (fresh tensors, no gradient; the fastest of 5 calls each, about 1 ms in all)."""
+    (fresh tensors, no gradient; the fastest of 5 calls each: 3-11 ms on the EPYC, 50 ms more for the first, which warms MKL up)."""
     eye = torch.eye(k)
     with torch.no_grad():
         if direction == "rows":  # planes -> rows
