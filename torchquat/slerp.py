@@ -210,7 +210,9 @@ def quat_slerp(q0: Tensor, q1: Tensor, t: Union[float, Tensor]) -> Tensor:
     Args:
         q0: start quaternions; other norms than 1 are normalised first (zero gives NaN).
         q1: end quaternions, likewise; batch dims broadcast with ``q0``'s.
-        t: interpolation parameter, a float or a tensor broadcasting with the batch dims.
+        t: interpolation parameter, a float or a tensor broadcasting with the batch dims (a tensor
+            on another device or in another dtype is copied to ``q0``'s: for a CPU ``t`` with GPU
+            quaternions, a host-to-device copy; a float is filled in on the device, no copy).
 
     Returns:
         Unit quaternions; ``t = 0`` gives ``q0`` and ``t = 1`` gives ``+-q1``.
