@@ -2,11 +2,10 @@
 
 from typing import Optional
 
-import torch
 from torch import Tensor, nn
 
+from .._validation import check_broadcast
 from ..conventions import check_degrees
-from ..errors import ShapeError
 from ..quaternion import quat_rotate
 from ..registry import convert, parse_conversion
 from ._common import check_tensor
@@ -96,9 +95,5 @@ class RotateVectors(nn.Module):
         """Rotate ``v`` by ``q``."""
         check_tensor("RotateVectors", "q", q, (4,))  # (here, so that errors name the layer)
         check_tensor("RotateVectors", "v", v, (3,))
-        try:
-            torch.broadcast_shapes(q.shape[:-1], v.shape[:-1])
-        except RuntimeError:
-            raise ShapeError(f"RotateVectors: expected q and v with broadcastable batch shapes, got "
-                             f"{tuple(q.shape)} and {tuple(v.shape)}") from None
+        check_broadcast("RotateVectors", ("q", "v"), (q, v), (1, 1))
         return quat_rotate(q, v)
