@@ -69,9 +69,16 @@ def _fresh_copy(fn: Callable, tag: int) -> Callable:
     return copy
 
 
-def _compiled_for(fn: Callable, static: Tuple, context: Tuple = ()) -> Callable:
+# Inductor inlines a pointwise value into each of its readers unless it holds more operations than
+# this (default 50 on the CPU): the polynomial atan2's ~30 operations, read by several others in the
+# Euler kernels, made their compile 5-17x longer (m2e: 5 -> 65-89 s); with 20, 2x.
+_POLYNOMIAL_ATAN2_OPTIONS = {"realize_cpu_opcount_threshold": 20}
+
+
+def _compiled_for(fn: Callable, static: Tuple, context: Tuple = (), polynomial_atan2: bool = False) -> Callable:
     """The compiled ``fn`` for its static options (sorted ``(name, value)`` pairs) and the call's
-    ``context`` (grad, inference mode, dtype): one compiled function for each."""
+    ``context`` (grad, inference mode, dtype): one compiled function for each. ``polynomial_atan2``:
+    a kernel whose float32 graphs without a gradient take ``_math.polynomial_atan2``."""
     key = (fn, static, context)
     compiled = _compiled.get(key)
     if compiled is None:
@@ -95,6 +102,8 @@ def _compiled_for(fn: Callable, static: Tuple, context: Tuple = ()) -> Callable:
                 inductor_options["custom_partitioner_fn"] = NoSavedMasks()
             except ImportError:
                 pass
+            if polynomial_atan2 and not context[0] and context[2] == torch.float32:
+                inductor_options.update(_POLYNOMIAL_ATAN2_OPTIONS)
         compiled = _compiled[key] = torch.compile(_fresh_copy(bound, len(_compiled)), dynamic=True, fullgraph=True,
                                                      backend=_backend, options=inductor_options)
     return compiled
@@ -259,7 +268,7 @@ class _FirstOrder(torch.autograd.Function):
 
 
 def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[int, ...]] = None,
-           compiled_from_rows: int = 0) -> Callable:
+           compiled_from_rows: int = 0, polynomial_atan2: bool = False) -> Callable:
     """Mark an unchecked kernel ``fn(*tensors, **static_options)`` as compilable.
 
     Static options (an Euler convention, an ``eps``) are bound before compiling, so each
@@ -273,9 +282,14 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
     of fewer rows run eagerly, where a compiled call's fixed cost (dynamo's guards and wrappers,
     about 30 us) is more than eager code takes: the crossover measured on a CPU, forward and with
     the backward (``docs/bench_profile.md``, "Session 14"). Off the CPU every batch is compiled.
+
+    ``polynomial_atan2``: the kernel's compiled float32 CPU graphs without a gradient compute
+    ``atan2`` by ``_math.polynomial_atan2`` (compiled with the inductor option that keeps their
+    compile time in bounds); nowhere else.
     """
     if fn is None:
-        return functools.partial(kernel, blocked_row_dims=blocked_row_dims, compiled_from_rows=compiled_from_rows)
+        return functools.partial(kernel, blocked_row_dims=blocked_row_dims, compiled_from_rows=compiled_from_rows,
+                                 polynomial_atan2=polynomial_atan2)
 
     @functools.wraps(fn)
     def dispatch(*tensors, **static):
@@ -293,8 +307,10 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
             # the call runs eagerly instead of failing (fullgraph=True makes the limit an error).
             context = (torch.is_grad_enabled() and any(t.requires_grad for t in tensors),
                        torch.is_inference_mode_enabled(), tensors[0].dtype)
-            compiled = _compiled_for(fn, tuple(sorted(static.items())), context)
+            compiled = _compiled_for(fn, tuple(sorted(static.items())), context, polynomial_atan2)
             if compiled not in _past_limit:
+                outer = getattr(_math.KERNEL_CALL, "polynomial_atan2", False)
+                _math.KERNEL_CALL.polynomial_atan2 = polynomial_atan2  # (read only if this call traces)
                 try:
                     if context[0]:
                         return _first_order_only(compiled(*tensors), tensors)
@@ -303,6 +319,8 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
                     if type(error).__name__ != "FailOnRecompileLimitHit":
                         raise
                     _past_limit.add(compiled)
+                finally:
+                    _math.KERNEL_CALL.polynomial_atan2 = outer
             elif _set_stance is not None:  # its graphs still serve the layouts they were made for;
                 # a new one runs eagerly at once (no guard failure, recompile attempt and warning a call)
                 with _set_stance("eager_on_recompile"):

@@ -19,7 +19,7 @@ import torch
 from torch import Tensor
 
 from ._closed_form import Rule
-from ._math import bilinear, bilinear_terms, constant, literal, safe_sqrt, sparse_columns, zero_to_inf
+from ._math import atan2, bilinear, bilinear_terms, constant, literal, safe_sqrt, sparse_columns, zero_to_inf
 from ._planes import columns, combinations, plane_buffer, rows, slot
 from .conventions import EULER_CONVENTIONS, EulerConvention
 from .matrix import _SHEPPERD, _SHEPPERD_OFFSET, _SHEPPERD_ROWS
@@ -222,14 +222,14 @@ def angles_parts(forms, conv: EulerConvention, eps: float, abcd2, out: Optional[
     final = (lambda i: None) if out is None else out.__getitem__  # (the last passes write into the buffer)
     if values:  # (at lock the discarded atan2 of about (0, 0) is any angle: no gradient to spoil;
         # strided columns are copied, as the wheres would: atan2's vectorised loop, the same bits)
-        t1 = torch.where(locked, constant("zero", 0.0, y1), torch.atan2(y1.contiguous(), x1.contiguous()),
+        t1 = torch.where(locked, constant("zero", 0.0, y1), atan2(y1.contiguous(), x1.contiguous()),
                          out=final(2) if conv.intrinsic else None)
     else:
         y1_used, x1_used = torch.where(locked, 0.0, y1), torch.where(locked, 1.0, x1)  # t1 = 0 at lock
-        t1 = torch.atan2(y1_used, x1_used, out=final(2) if conv.intrinsic else None)
-    middle = torch.atan2(two_h, z, out=final(1)) if conv.symmetric else torch.atan2(z, two_h, out=final(1))
+        t1 = atan2(y1_used, x1_used, out=final(2) if conv.intrinsic else None)
+    middle = atan2(two_h, z, out=final(1)) if conv.symmetric else atan2(z, two_h, out=final(1))
     y_double, x_double = pick(y_zero, y_pi), pick(x_zero, x_pi)
-    double = torch.atan2(y_double, x_double)
+    double = atan2(y_double, x_double)
     t3 = torch.addcmul(double, t1, step)  # D - tb t1 near 0, D + tb t1 near pi
     if not conv.intrinsic:  # SciPy's rule moves the rotation into the first angle at lock: there
         # t3 = D, and the lock pair (2ab, a^2 - b^2) or (-2cd, c^2 - d^2) is the double angle's up

@@ -124,7 +124,7 @@ def euler_to_matrix(angles: Tensor, convention: str, degrees: bool = False) -> T
     return restore(euler_to_matrix_unchecked(to_radians(angles, check_degrees("euler_to_matrix", degrees)), convention=conv), dtype)
 
 
-@kernel(blocked_row_dims=(1,))
+@kernel(blocked_row_dims=(1,), polynomial_atan2=True)
 def quat_to_euler_unchecked(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
     path = _quat_euler_path(q)
     if path == "planar":
@@ -213,7 +213,7 @@ def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Option
     return restore(to_degrees(angles, check_degrees("quat_to_euler", degrees)), dtype)
 
 
-@kernel(blocked_row_dims=(2,))
+@kernel(blocked_row_dims=(2,), polynomial_atan2=True)
 def matrix_to_euler_unchecked(R: Tensor, convention: EulerConvention, eps: float) -> Tensor:
     if not _matrix_euler_small(R):
         if torch.compiler.is_compiling():

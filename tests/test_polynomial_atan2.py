@@ -1,0 +1,150 @@
+"""The float32 ``atan2`` of the compiled CPU kernels (``_math.polynomial_atan2``): its accuracy and
+special values, where it is used, and the compiled kernels that use it against eager."""
+
+import math
+
+import pytest
+import torch
+
+import torchquat as tq
+from torchquat import _math
+from function_table import ALL
+
+F32 = torch.float32
+
+
+def _ulps(value: torch.Tensor, exact: torch.Tensor) -> torch.Tensor:
+    """``|value - exact|`` in units of float32's spacing at ``exact`` (float64)."""
+    magnitude = exact.abs().to(F32)
+    spacing = torch.nextafter(magnitude, torch.tensor(math.inf)).double() - magnitude.double()
+    return (value.double() - exact).abs() / spacing
+
+
+def _sweep(n=1_000_000, seed=0):
+    """Both arguments of any sign, magnitudes spread over 1e-13 to 1e13 and ratios likewise."""
+    g = torch.Generator().manual_seed(seed)
+    magnitude = lambda: torch.exp(torch.randn(n, generator=g) * 6.0)  # noqa: E731
+    return torch.randn(n, generator=g) * magnitude(), torch.randn(n, generator=g) * magnitude()
+
+
+def test_the_polynomial_is_within_two_and_a_half_ulps_in_every_quadrant_and_octant():
+    y, x = _sweep()
+    exact = torch.atan2(y.double(), x.double())
+    error = _ulps(_math.polynomial_atan2(y, x), exact)
+    for region in (x > 0, x < 0, y.abs() > x.abs(), y.abs() <= x.abs()):
+        assert region.sum() > 100_000
+        assert error[region].max() <= 2.5
+    assert error.mean() < 0.5
+    # (for scale: torch.atan2 itself is within 1 ulp)
+    assert _ulps(torch.atan2(y, x), exact).max() <= 1.0
+
+
+def test_the_polynomial_is_accurate_relative_to_small_results():
+    # the distances and Euler angles read atan2(tiny, 1): relative accuracy, not absolute
+    x = torch.ones(4000)
+    y = torch.logspace(-30, 0, 4000)
+    exact = torch.atan2(y.double(), x.double())
+    assert (_math.polynomial_atan2(y, x).double() / exact - 1).abs().max() < 2.5e-7
+
+
+def test_the_polynomial_keeps_atan2s_special_values():
+    values = torch.tensor([0.0, -0.0, 1.0, -1.0, math.inf, -math.inf, math.nan, 1e-40, -1e-40, 3e38, -3e38])
+    y, x = torch.meshgrid(values, values, indexing="ij")
+    ours = _math.polynomial_atan2(y, x)
+    # correctly rounded reference: float64's atan2 rounded once
+    expected = torch.atan2(y.double(), x.double()).to(F32)
+    assert torch.equal(ours.isnan(), expected.isnan())
+    finite = ~expected.isnan()
+    assert torch.equal(ours[finite], expected[finite])
+    assert torch.equal(torch.signbit(ours[finite]), torch.signbit(expected[finite]))  # -0.0 and -pi kept
+    # half turns: atan2(+-0, negative) is +-pi exactly, as torch.atan2
+    assert _math.polynomial_atan2(torch.tensor([0.0, -0.0]), torch.tensor([-2.0, -2.0])).tolist() == [
+        torch.tensor(math.pi).item(), -torch.tensor(math.pi).item()]
+
+
+def _atan2_calls(fn, *inputs) -> int:
+    """How many ``torch.atan2`` calls dynamo's graph of ``fn`` on ``inputs`` makes."""
+    targets = []
+
+    def backend(gm, example_inputs):
+        targets.extend(node.target for node in gm.graph.nodes if node.op == "call_function")
+        return gm.forward
+
+    torch._dynamo.reset()
+    torch.compile(fn, backend=backend, fullgraph=True)(*inputs)
+    return targets.count(torch.atan2)
+
+
+def test_the_polynomial_is_taken_only_in_the_marked_kernels_float32_cpu_graphs_without_a_gradient():
+    y, x = torch.randn(8), torch.randn(8)
+    # a user's own compiled code: torch.atan2 (the polynomial would multiply its compile time)
+    assert _atan2_calls(_math.atan2, y, x) == 1
+    _math.KERNEL_CALL.polynomial_atan2 = True  # (as the dispatcher sets it around a marked kernel)
+    try:
+        assert _atan2_calls(_math.atan2, y, x) == 0
+        assert _atan2_calls(_math.atan2, y.double(), x.double()) == 1  # float64: torch's
+        leaf = y.clone().requires_grad_()
+        assert _atan2_calls(_math.atan2, leaf, x) == 1  # a recorded gradient: torch's exact one
+        with torch.no_grad():
+            assert _atan2_calls(_math.atan2, leaf, x) == 0
+    finally:
+        _math.KERNEL_CALL.polynomial_atan2 = False
+    # eager: torch.atan2 always, bit for bit
+    assert torch.equal(_math.atan2(y, x), torch.atan2(y, x))
+
+
+def test_the_euler_kernels_graphs_take_the_polynomial_and_a_users_compile_does_not(compiled, monkeypatch):
+    import torchquat._dispatch as dispatch
+
+    calls, inputs, current = {}, {}, "inputs"
+
+    def backend(gm, example_inputs):
+        nodes = list(gm.graph.nodes)
+        calls[current] = sum(node.target is torch.atan2 for node in nodes if node.op == "call_function")
+        inputs[current] = [node.name for node in nodes if node.op == "placeholder"
+                           and not node.name.startswith("l_tensors_") and not (node.name[0] == "s" and node.name[1:].isdigit())]
+        return gm.forward
+
+    monkeypatch.setattr(dispatch, "_backend", backend)
+    monkeypatch.setattr(dispatch, "_compiled", {})
+    torch._dynamo.reset()
+    q = tq.random_quat(64, generator=torch.Generator().manual_seed(1))
+    R = tq.quat_to_matrix(q)
+    for current, call in (("q2e", lambda: tq.quat_to_euler(q, "ZYX")), ("R2e", lambda: tq.matrix_to_euler(R, "zxz"))):
+        with torch.no_grad():
+            call()
+    assert (calls["q2e"], calls["R2e"]) == (0, 0)
+    if _math.literals_trace():  # (its numbers are literals of the graph, not inputs)
+        assert (inputs["q2e"], inputs["R2e"]) == ([], [])
+    current = "with a gradient"
+    leaf = q.clone().requires_grad_()
+    tq.quat_to_euler(leaf, "ZYX")
+    assert calls[current] == 3  # t1, the middle angle, the double angle
+    tq.use_compiled_kernels(False)
+    torch._dynamo.reset()
+    current = "a user's compile"
+    torch.compile(lambda x: tq.quat_to_euler(x, "ZYX"), backend=backend, fullgraph=True)(q)
+    assert calls[current] == 3
+
+
+KERNELS = ["quat_to_euler[ZYX]", "quat_to_euler[zxz]", "matrix_to_euler[XZY]", "matrix_to_euler[ZXZ]"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", KERNELS)
+def test_compiled_float32_euler_angles_without_a_gradient_agree_with_eager(name, compiled):
+    fn, generic, singular = ALL[name]
+    convention = name[-4:-1]
+    for make in (generic, singular):
+        inputs = tuple(x.to(F32) for x in make())
+        with torch.no_grad():
+            out = fn(*inputs)
+            tq.use_compiled_kernels(False)
+            try:
+                ref = fn(*inputs)
+            finally:
+                tq.use_compiled_kernels(True)
+        # as rotations (next to lock single angles are ill-conditioned; exact half turns are
+        # test_compiled_kernels.py's test_compiled_exact_half_turns_are_plus_pi_as_eager)
+        assert torch.allclose(tq.euler_to_matrix(out, convention), tq.euler_to_matrix(ref, convention), atol=2e-6)
+        assert out.abs().max() <= math.pi
