@@ -309,8 +309,8 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
                        torch.is_inference_mode_enabled(), tensors[0].dtype)
             compiled = _compiled_for(fn, tuple(sorted(static.items())), context, polynomial_atan2)
             if compiled not in _past_limit:
-                outer = getattr(_math.KERNEL_CALL, "polynomial_atan2", False)
-                _math.KERNEL_CALL.polynomial_atan2 = polynomial_atan2  # (read only if this call traces)
+                if polynomial_atan2:  # (read only if this call traces; other kernels leave it alone)
+                    _math.KERNEL_CALL.polynomial_atan2 = True
                 try:
                     if context[0]:
                         return _first_order_only(compiled(*tensors), tensors)
@@ -320,7 +320,8 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
                         raise
                     _past_limit.add(compiled)
                 finally:
-                    _math.KERNEL_CALL.polynomial_atan2 = outer
+                    if polynomial_atan2:
+                        _math.KERNEL_CALL.polynomial_atan2 = False
             elif _set_stance is not None:  # its graphs still serve the layouts they were made for;
                 # a new one runs eagerly at once (no guard failure, recompile attempt and warning a call)
                 with _set_stance("eager_on_recompile"):
