@@ -10,10 +10,18 @@ import torch
 
 import torchquat as tq
 import torchquat._math as tqmath
+import torchquat._one_row as one_row
 from torchquat import distance, rot6d
 from rotation_samples import all_singular, cube_rotations, uniform
 
 F64 = torch.float64
+
+
+@pytest.fixture(autouse=True)
+def tensor_kernels(monkeypatch):
+    """These tests are of the tensor kernels' closed forms, single rows included: the one-row path
+    (torchquat._one_row; its own tests in test_one_row.py) is switched off here."""
+    monkeypatch.setattr(one_row, "ENABLED", False)
 
 
 def _grads(fn, inputs, grad):

@@ -205,8 +205,11 @@ def test_small_cpu_batches_run_eagerly_where_eager_is_faster(monkeypatch):
         # the largest input counts: one rotation applied to many vectors is a large batch
         tq.quat_rotate(q[:1], v)
         assert "rotate_unchecked" in compiled_kernels()
-        # a kernel that the compiled path runs faster at every size compiles for one rotation
+        # one rotation takes the Python floats of torchquat._one_row, compiled kernels on or not
         tq.quat_to_euler(q[:1], "ZYX")
+        assert "quat_to_euler_unchecked" not in compiled_kernels()
+        # a kernel that the compiled path runs faster at every size compiles for two rotations
+        tq.quat_to_euler(q[:2], "ZYX")
         assert "quat_to_euler_unchecked" in compiled_kernels()
     finally:
         tq.use_compiled_kernels(False)

@@ -21,7 +21,7 @@ from typing import Callable, Dict, Optional, Tuple
 import torch
 from torch import Tensor
 
-from . import _closed_form, _math, _planes
+from . import _closed_form, _math, _one_row, _planes
 
 __all__ = ["use_compiled_kernels", "compiled_kernels_enabled", "kernel"]
 
@@ -268,7 +268,8 @@ class _FirstOrder(torch.autograd.Function):
 
 
 def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[int, ...]] = None,
-           compiled_from_rows: int = 0, polynomial_atan2: bool = False) -> Callable:
+           compiled_from_rows: int = 0, polynomial_atan2: bool = False,
+           one_row: Optional[_one_row.OneRow] = None) -> Callable:
     """Mark an unchecked kernel ``fn(*tensors, **static_options)`` as compilable.
 
     Static options (an Euler convention, an ``eps``) are bound before compiling, so each
@@ -286,13 +287,20 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
     ``polynomial_atan2``: the kernel's compiled float32 CPU graphs without a gradient compute
     ``atan2`` by ``_math.polynomial_atan2`` (compiled with the inductor option that keeps their
     compile time in bounds); nowhere else.
+
+    ``one_row`` (a :class:`torchquat._one_row.OneRow`): the kernel's formulas in Python floats, which
+    a call on one CPU row with nothing to differentiate takes (see ``torchquat._one_row``).
     """
     if fn is None:
         return functools.partial(kernel, blocked_row_dims=blocked_row_dims, compiled_from_rows=compiled_from_rows,
-                                 polynomial_atan2=polynomial_atan2)
+                                 polynomial_atan2=polynomial_atan2, one_row=one_row)
 
     @functools.wraps(fn)
     def dispatch(*tensors, **static):
+        if one_row is not None:
+            out = _one_row.run(one_row, fn, tensors, static)
+            if out is not None:
+                return out
         if _any_autocast() and torch.is_autocast_enabled(device := tensors[0].device.type):
             # Autocast would round the kernels' small matmuls to bfloat16/float16; rotations
             # are computed in the input's precision (float32 at least) and returned in it.

@@ -11,6 +11,7 @@ from torch import Tensor
 from . import _closed_form as closed_form
 from ._closed_form import Rule, jacobian_rule
 from ._dispatch import kernel
+from ._one_row import OneRow
 from ._math import (HALF_IDENTITY, constant, contract, is_small, outer_product, small_angle_threshold,
                     sum_of_products, sum_of_squares)
 from ._planes import columns, plane_buffer, rows, slot
@@ -90,7 +91,7 @@ def _axis_angle_to_quat_with_jacobian(v: Tensor):
 _AXIS_ANGLE_TO_QUAT = jacobian_rule(_axis_angle_to_quat_small, _axis_angle_to_quat_with_jacobian, _axis_angle_to_quat_values)
 
 
-@kernel(blocked_row_dims=(1,), compiled_from_rows=1_024)
+@kernel(blocked_row_dims=(1,), compiled_from_rows=1_024, one_row=OneRow("axis_angle_to_quat", (3,), (4,)))
 def axis_angle_to_quat_unchecked(v: Tensor) -> Tensor:
     # Up to 1,024 rows one closed-form node on the table path; above, its broadcast (..., 3, 4)
     # products cost more per row, and the columns with their own closed form are 1.4-1.9x faster
@@ -180,7 +181,7 @@ _COLUMNWISE_SHARE = 8.0
 _QUAT_TO_AXIS_ANGLE = jacobian_rule(_quat_to_axis_angle_small, _quat_to_axis_angle_with_jacobian, _quat_to_axis_angle_values)
 
 
-@kernel(blocked_row_dims=(1,), compiled_from_rows=2_048)
+@kernel(blocked_row_dims=(1,), compiled_from_rows=2_048, one_row=OneRow("quat_to_axis_angle", (4,), (3,)))
 def quat_to_axis_angle_unchecked(q: Tensor) -> Tensor:
     if torch.compiler.is_compiling():
         return _quat_to_axis_angle_columnwise(q)
@@ -346,7 +347,7 @@ _AXIS_ANGLE_TO_MATRIX = jacobian_rule(_axis_angle_to_matrix_small, _axis_angle_t
                                       lambda v: _rotation_form(_half_turn_quat(v)))  # (R is even in q)
 
 
-@kernel(blocked_row_dims=(1,), compiled_from_rows=512)
+@kernel(blocked_row_dims=(1,), compiled_from_rows=512, one_row=OneRow("axis_angle_to_matrix", (3,), (3, 3)))
 def axis_angle_to_matrix_unchecked(v: Tensor) -> Tensor:
     # Through the quaternion, where Rodrigues' formula written out is about 50 eager operations:
     # a few rows in one closed-form node (the quaternion's series and its quadratic form, with
@@ -356,7 +357,7 @@ def axis_angle_to_matrix_unchecked(v: Tensor) -> Tensor:
     return quat_to_matrix_unchecked(axis_angle_to_quat_unchecked(v))
 
 
-@kernel(blocked_row_dims=(2,))
+@kernel(blocked_row_dims=(2,), one_row=OneRow("matrix_to_axis_angle", (9,), (3,)))
 def matrix_to_axis_angle_unchecked(R: Tensor) -> Tensor:
     return quat_to_axis_angle_unchecked(matrix_to_quat_unchecked(R))
 

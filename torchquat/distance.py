@@ -6,6 +6,7 @@ from torch import Tensor
 from . import _closed_form as closed_form
 from ._closed_form import Rule
 from ._dispatch import kernel
+from ._one_row import OneRow
 from ._math import constant, is_small, norm_twice_differentiable, safe_sqrt, sum_of_products, sum_of_squares, zero_to_inf
 from ._planes import columns, planar, plane_buffer, rows, slot
 from ._validation import prepare_pair, restore
@@ -64,7 +65,7 @@ def _quat_distance_values(q1: Tensor, q2: Tensor) -> Tensor:
 _QUAT_DISTANCE = Rule(_quat_distance_small, _quat_distance_parts, _quat_distance_backward, _quat_distance_values)
 
 
-@kernel(blocked_row_dims=(1, 1), compiled_from_rows=512)
+@kernel(blocked_row_dims=(1, 1), compiled_from_rows=512, one_row=OneRow("quat_geodesic_distance", (4, 4), ()))
 def quat_geodesic_distance_unchecked(q1: Tensor, q2: Tensor) -> Tensor:
     # (the columns' forward wins from about 1,536 rows, 0.63x the time at 4,096, but squares
     # products of the inputs: their narrower norm range stays above 4,096 rows, on both modes)
@@ -185,7 +186,7 @@ def quat_geodesic_distance(q1: Tensor, q2: Tensor) -> Tensor:
     return restore(quat_geodesic_distance_unchecked(q1, q2), dtype)
 
 
-@kernel(blocked_row_dims=(2, 2), compiled_from_rows=1_024)
+@kernel(blocked_row_dims=(2, 2), compiled_from_rows=1_024, one_row=OneRow("matrix_geodesic_distance", (9, 9), ()))
 def matrix_geodesic_distance_unchecked(R1: Tensor, R2: Tensor) -> Tensor:
     if torch.compiler.is_compiling():  # (the closed-form backward compiled: 31 ms against 32, not kept)
         return _matrix_distance_columnwise(R1, R2)

@@ -21,6 +21,7 @@ from torch import Tensor
 
 from . import _closed_form as closed_form
 from ._dispatch import kernel
+from ._one_row import OneRow
 from ._euler_forms import (COLUMNWISE, MATRIX_TO_EULER_COLUMNWISE, PAIRS, QUAT_TO_EULER_PLANAR,
                            QUAT_TO_EULER_PLANAR_SHARE, angles_columnwise, lock_columnwise, matrix_lock_columnwise,
                            matrix_to_euler_columnwise, quat_lock_planar)
@@ -37,7 +38,7 @@ from .matrix import quat_to_matrix_unchecked
 __all__ = ["euler_to_quat", "quat_to_euler", "euler_to_matrix", "matrix_to_euler", "euler_gimbal_lock"]
 
 
-@kernel(blocked_row_dims=(1,), compiled_from_rows=512)
+@kernel(blocked_row_dims=(1,), compiled_from_rows=512, one_row=OneRow("euler_to_quat", (3,), (4,)))
 def euler_to_quat_unchecked(angles: Tensor, convention: EulerConvention) -> Tensor:
     # column by column from 513 rows, with its closed-form backward (forward+backward: 1.6x faster
     # than the tables at 1,024 rows, even at 512; the tables' forward leads by 10% up to ~1,500)
@@ -86,7 +87,7 @@ def euler_to_quat(angles: Tensor, convention: str, degrees: bool = False) -> Ten
     return restore(euler_to_quat_unchecked(to_radians(angles, check_degrees("euler_to_quat", degrees)), convention=conv), dtype)
 
 
-@kernel(blocked_row_dims=(1,), compiled_from_rows=256)
+@kernel(blocked_row_dims=(1,), compiled_from_rows=256, one_row=OneRow("euler_to_matrix", (3,), (3, 3)))
 def euler_to_matrix_unchecked(angles: Tensor, convention: EulerConvention) -> Tensor:
     if is_small(angles, 3, share=1 / 16, gpu_share=0.25):  # the 4-slot, 27-column outer product: pays up to ~250 rows
         return closed_form.apply(EULER_TO_MATRIX, angles, convention=convention)
@@ -124,7 +125,7 @@ def euler_to_matrix(angles: Tensor, convention: str, degrees: bool = False) -> T
     return restore(euler_to_matrix_unchecked(to_radians(angles, check_degrees("euler_to_matrix", degrees)), convention=conv), dtype)
 
 
-@kernel(blocked_row_dims=(1,), polynomial_atan2=True)
+@kernel(blocked_row_dims=(1,), polynomial_atan2=True, one_row=OneRow("quat_to_euler", (4,), (3,)))
 def quat_to_euler_unchecked(q: Tensor, convention: EulerConvention, eps: float) -> Tensor:
     path = _quat_euler_path(q)
     if path == "planar":
@@ -213,7 +214,7 @@ def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Option
     return restore(to_degrees(angles, check_degrees("quat_to_euler", degrees)), dtype)
 
 
-@kernel(blocked_row_dims=(2,), polynomial_atan2=True)
+@kernel(blocked_row_dims=(2,), polynomial_atan2=True, one_row=OneRow("matrix_to_euler", (9,), (3,)))
 def matrix_to_euler_unchecked(R: Tensor, convention: EulerConvention, eps: float) -> Tensor:
     if not _matrix_euler_small(R):
         if torch.compiler.is_compiling():

@@ -6,6 +6,7 @@ from torch import Tensor
 from . import _closed_form as closed_form
 from ._closed_form import Rule, _transformed, jacobian_rule
 from ._dispatch import kernel
+from ._one_row import OneRow
 from ._math import bilinear, bilinear_terms, constant, contract, is_small, outer_product, sum_of_squares
 from ._planes import columns, planar, plane_buffer, rows, slot
 from ._validation import prepare, restore
@@ -81,7 +82,7 @@ _QUAT_TO_MATRIX_PLANAR = Rule(_quat_to_matrix_planar, _quat_to_matrix_planar_par
                               _quat_to_matrix_planar)
 
 
-@kernel(blocked_row_dims=(1,), compiled_from_rows=2_048)
+@kernel(blocked_row_dims=(1,), compiled_from_rows=2_048, one_row=OneRow("quat_to_matrix", (4,), (3, 3)))
 def quat_to_matrix_unchecked(q: Tensor) -> Tensor:
     """Homogeneous form divided by ``|q|^2``: the rotation of ``q / |q|``, NaN for ``q = 0``."""
     if is_small(q, 4, gpu_share=4):
@@ -186,7 +187,7 @@ def _matrix_to_quat_with_jacobian(R: Tensor):
 _MATRIX_TO_QUAT = jacobian_rule(_matrix_to_quat_small, _matrix_to_quat_with_jacobian)
 
 
-@kernel(blocked_row_dims=(2,), compiled_from_rows=512)
+@kernel(blocked_row_dims=(2,), compiled_from_rows=512, one_row=OneRow("matrix_to_quat", (9,), (4,)))
 def matrix_to_quat_unchecked(R: Tensor) -> Tensor:
     """Shepperd's method (1978), branch-free, returning ``w >= 0``.
 

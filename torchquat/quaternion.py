@@ -16,6 +16,7 @@ from torch import Tensor
 from . import _closed_form as closed_form
 from ._closed_form import Rule
 from ._dispatch import kernel
+from ._one_row import OneRow
 from ._math import bilinear, bilinear_terms, constant, contract, is_small, outer_product, sum_of_squares
 from ._planes import columns, planar, plane_buffer, rows, slot
 from ._validation import prepare, prepare_pair, restore
@@ -77,7 +78,7 @@ _PRODUCT_COLUMNWISE = Rule(_product_columnwise, _product_columnwise_parts, _prod
                            _product_columnwise)
 
 
-@kernel(blocked_row_dims=(1, 1), compiled_from_rows=8_192)
+@kernel(blocked_row_dims=(1, 1), compiled_from_rows=8_192, one_row=OneRow("hamilton_product", (4, 4), (4,)))
 def hamilton_product(p: Tensor, q: Tensor) -> Tensor:
     """Unchecked Hamilton product of prepared tensors (used internally)."""
     if is_small(p, 4, gpu_share=4) and is_small(q, 4, gpu_share=4):
@@ -227,7 +228,7 @@ def quat_rotate(q: Tensor, v: Tensor) -> Tensor:
     return restore(rotate_unchecked(q, v), dtype)
 
 
-@kernel(blocked_row_dims=(1, 1), compiled_from_rows=1_024)
+@kernel(blocked_row_dims=(1, 1), compiled_from_rows=1_024, one_row=OneRow("rotate", (4, 3), (3,)))
 def rotate_unchecked(q: Tensor, v: Tensor) -> Tensor:
     if torch.compiler.is_compiling() or planar(q, 4, _PLANAR_SHARE) or planar(v, 3, _PLANAR_SHARE):  # (one fused loop under compile)
         q, (a, b, c) = columns(q, share=_PLANAR_SHARE), columns(v, share=_PLANAR_SHARE)

@@ -1,0 +1,214 @@
+"""One rotation on the CPU with nothing to differentiate is computed in Python floats
+(``torchquat._one_row``): it must give what the tensor kernels give, for every function and on the
+singular sets, round once to the input's dtype, issue no tensor operation but the output's, and
+leave every other call (gradients, NaN, compile, vmap, tracing) to the tensor kernels."""
+
+import math
+
+import pytest
+import torch
+
+import torchquat as tq
+import torchquat._one_row as one_row
+from function_table import ALL, DispatchRecorder, assert_paths_agree, same_output
+
+# the functions whose kernels have a one-row form, each with its test name's stem
+ONE_ROW = sorted(name for name in ALL if name.split("[")[0] in {
+    "quat_to_matrix", "matrix_to_quat", "quat_multiply", "quat_rotate", "axis_angle_to_quat", "quat_to_axis_angle",
+    "axis_angle_to_matrix", "matrix_to_axis_angle", "rot6d_to_matrix", "quat_geodesic_distance",
+    "matrix_geodesic_distance", "euler_to_quat", "euler_to_matrix", "quat_to_euler", "matrix_to_euler"})
+TOLERANCE = {torch.float64: 1e-12, torch.float32: 2e-6}
+
+
+def _one_row_each(fn, inputs):
+    """``fn`` called on each row alone (a one-row path), stacked."""
+    return torch.stack([fn(*(x[i] for x in inputs)) for i in range(inputs[0].shape[0])])
+
+
+def _assert_same(name, got, expected, atol):
+    if "to_euler" in name:  # as rotations: next to lock single angles follow the rounding
+        convention = name[-4:-1]
+        got, expected = (tq.euler_to_matrix(a.double(), convention) for a in (got, expected))
+    elif name.endswith("to_quat") or "to_quat[" in name:  # q or -q: w's sign is the rounding's where w ~ 0
+        assert (got[..., 0] >= 0).all()
+        sign = torch.where((got * expected).sum(-1, keepdim=True) < 0, -1.0, 1.0).to(got.dtype)
+        expected = expected * sign
+    assert torch.equal(got.isnan(), expected.isnan())
+    assert same_output(name, got.double().nan_to_num(7.0), expected.double().nan_to_num(7.0), atol), name
+
+
+def test_every_one_row_function_is_covered():
+    assert len(ONE_ROW) == 11 + 4 * 24
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32], ids=str)
+@pytest.mark.parametrize("kind", ["generic", "singular"])
+@pytest.mark.parametrize("name", ONE_ROW)
+def test_one_row_gives_the_tensor_kernels_answer(name, kind, dtype):
+    fn, generic, singular = ALL[name]
+    inputs = tuple(x.to(dtype) for x in (generic() if kind == "generic" else singular()))
+    _assert_same(name, _one_row_each(fn, inputs), fn(*inputs), TOLERANCE[dtype])
+
+
+@pytest.mark.parametrize("name", ONE_ROW)
+def test_one_row_issues_no_tensor_operation_but_its_output(name):
+    fn, generic, _ = ALL[name]
+    inputs = tuple(x[0] for x in generic())
+    with DispatchRecorder() as one:
+        fn(*inputs)
+    with DispatchRecorder() as two:
+        fn(*(torch.stack([x, x]) for x in inputs))
+    assert one.names == ["lift_fresh"] and len(two.names) > 3
+
+
+@pytest.mark.parametrize("name", ONE_ROW)
+def test_float32_is_the_float64_result_rounded_once(name):
+    fn, generic, _ = ALL[name]
+    for i in range(3):  # (generic rows: no lock test or collinearity threshold between the dtypes)
+        inputs = tuple(x[i].float() for x in generic())
+        assert torch.equal(fn(*inputs), fn(*(x.double() for x in inputs)).float()), name
+
+
+@pytest.mark.parametrize("batch", [(), (1,), (1, 1, 1)], ids=str)
+def test_one_row_keeps_batch_shape_dtype_and_gives_fresh_memory(batch):
+    q = torch.tensor([0.9, -0.1, 0.3, 0.2]).reshape(batch + (4,))
+    v = torch.tensor([1.0, 2.0, 3.0]).reshape(batch + (3,))
+    R = tq.quat_to_matrix(q)
+    two = torch.cat([q.reshape(1, 4)] * 2)
+    assert R.shape == batch + (3, 3) and R.dtype == torch.float32
+    assert torch.allclose(R.reshape(3, 3), tq.quat_to_matrix(two)[0], atol=1e-6)
+    assert tq.quat_to_euler(q, "ZYX").shape == batch + (3,)
+    assert tq.quat_geodesic_distance(q, q).shape == batch
+    assert tq.quat_rotate(q, v.reshape(3)).shape == batch + (3,)  # broadcast against a batch-less vector
+    assert tq.quat_multiply(q.reshape(4), q).shape == batch + (4,)
+    out = tq.quat_rotate(q, v)
+    out.add_(1.0)  # writable, and not the input's memory
+    assert torch.equal(v, torch.tensor([1.0, 2.0, 3.0]).reshape(batch + (3,)))
+    half = q.to(torch.bfloat16)  # computed in float32, returned in bfloat16
+    assert torch.equal(tq.quat_to_matrix(half), tq.quat_to_matrix(half.float()).to(torch.bfloat16))
+
+
+@pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf])
+def test_non_finite_inputs_take_the_tensor_kernels(value):
+    q = torch.tensor([value, 0.1, 0.2, 0.3])
+    for fn in (tq.quat_to_matrix, lambda x: tq.quat_to_euler(x, "zxz"), tq.quat_to_axis_angle):
+        assert torch.equal(fn(q).isnan(), fn(torch.stack([q, q]))[0].isnan())
+    assert tq.quat_to_matrix(q).isnan().any()
+
+
+def test_degenerate_inputs_give_nan_as_the_tensor_kernels():
+    zero = torch.zeros(4, dtype=torch.float64)
+    unit = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=torch.float64)
+    assert tq.quat_to_matrix(zero).isnan().all()
+    assert tq.quat_to_euler(zero, "ZYX").isnan().all()
+    assert tq.quat_geodesic_distance(zero, unit).isnan()
+    assert tq.quat_to_axis_angle(zero).isnan().all()
+    collinear = torch.tensor([1.0, 2.0, 3.0, 2.0, 4.0, 6.0])
+    assert tq.rot6d_to_matrix(collinear).isnan().all()
+    assert tq.rot6d_to_matrix(torch.tensor([0.0, 0.0, 0.0, 0.0, 1.0, 0.0])).isnan().all()
+    assert tq.rot6d_to_matrix(torch.stack([collinear, collinear]))[0].isnan().all()
+
+
+def test_gimbal_lock_rule_at_one_row():
+    # SciPy's rule: at lock the third angle is 0 and the first carries the rotation
+    for convention in ("ZYX", "xyz", "ZXZ", "yxy"):
+        middle = math.pi / 2 if convention[0].lower() != convention[2].lower() else 0.0
+        q = tq.euler_to_quat(torch.tensor([0.3, middle, 0.4], dtype=torch.float64), convention)
+        angles = tq.quat_to_euler(q, convention)
+        assert angles[2] == 0.0
+        assert torch.allclose(tq.euler_to_matrix(angles, convention), tq.quat_to_matrix(q), atol=1e-12)
+
+
+def _tensor_kernels(monkeypatch, fn, *inputs):
+    monkeypatch.setattr(one_row, "ENABLED", False)
+    try:
+        return fn(*inputs)
+    finally:
+        monkeypatch.setattr(one_row, "ENABLED", True)
+
+
+def _gradients(fn, inputs):
+    leaves = [x.detach().clone().requires_grad_() for x in inputs]
+    out = fn(*leaves)
+    weights = torch.linspace(0.5, 1.5, out.numel(), dtype=out.dtype).view(out.shape)  # (not a sum: its
+    # gradient would be symmetric in the outputs)
+    return out.detach(), torch.autograd.grad((out * weights).sum(), leaves)
+
+
+@pytest.mark.parametrize("name", ONE_ROW)
+def test_one_row_gradcheck(name):
+    fn, generic, _ = ALL[name]
+    for i in range(2):
+        inputs = tuple(x[i].detach().clone().requires_grad_() for x in generic())
+        out = fn(*inputs)
+        assert type(out.grad_fn).__name__ == "_OneRowGradientBackward", name  # the one-row node
+        assert torch.autograd.gradcheck(fn, inputs)
+    # double backward: the tensor kernel's derivative, through the node
+    assert torch.autograd.gradgradcheck(fn, inputs)
+
+
+@pytest.mark.parametrize("kind", ["generic", "singular"])
+@pytest.mark.parametrize("name", ONE_ROW)
+def test_one_row_gradients_are_the_tensor_kernels(name, kind, monkeypatch):
+    fn, generic, singular = ALL[name]
+    inputs = generic() if kind == "generic" else singular()
+    for i in range(inputs[0].shape[0]):
+        row = tuple(x[i] for x in inputs)
+        out, grads = _gradients(fn, row)
+        ref, ref_grads = _tensor_kernels(monkeypatch, _gradients, fn, row)
+        if "distance" in name and ref > torch.pi - 1e-6:  # the maximum's kink: rounding picks a side
+            assert torch.allclose(out, ref, atol=1e-12) and all(torch.isfinite(g).all() for g in grads)
+            continue
+        assert_paths_agree(name, kind == "singular", out[None], ref[None], [g[None] for g in grads],
+                           [g[None] for g in ref_grads], atol=1e-12, grad_atol=1e-9, grad_rtol=1e-9)
+
+
+def test_tracing_and_transforms_take_the_tensor_kernels():
+    q = torch.tensor([0.9, -0.1, 0.3, 0.2], dtype=torch.float64)
+    traced = torch.jit.trace(tq.quat_to_matrix, q)  # a trace, not a constant
+    other = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=torch.float64)
+    assert torch.allclose(traced(other), tq.quat_to_matrix(other))
+    batched = torch.func.vmap(tq.quat_to_matrix)(torch.stack([q, other]))
+    assert torch.allclose(batched[1], tq.quat_to_matrix(other))
+    jacobian = torch.func.jacrev(lambda x: tq.quat_to_euler(x, "ZYX"))(q)
+    assert torch.allclose(jacobian, torch.autograd.functional.jacobian(lambda x: tq.quat_to_euler(x, "ZYX"), q))
+
+
+def test_switched_off_the_tensor_kernels_run(monkeypatch):
+    q = torch.tensor([0.9, -0.1, 0.3, 0.2])
+    monkeypatch.setattr(one_row, "ENABLED", False)
+    with DispatchRecorder() as recorder:
+        tq.quat_to_matrix(q)
+    assert len(recorder.names) > 1
+
+
+def test_inference_mode():
+    with torch.inference_mode():
+        R = tq.quat_to_matrix(torch.tensor([0.9, -0.1, 0.3, 0.2]))
+    assert R.shape == (3, 3)
+
+
+@pytest.mark.parametrize("convention", ["ZYX", "xzy", "ZXZ", "yxy"])
+def test_matrices_that_are_not_rotations_give_the_tensor_kernels_answer(convention, monkeypatch):
+    # each function reads R as the kernels do (the Euler forms linear in R, Shepperd's row), so the
+    # answer for a matrix that is not a rotation does not depend on the batch size either
+    g = torch.Generator().manual_seed(3)
+    for R in torch.randn(6, 3, 3, generator=g, dtype=torch.float64):
+        for fn in (lambda R: tq.matrix_to_euler(R, convention), tq.matrix_to_quat, tq.matrix_to_axis_angle,
+                   lambda R: tq.matrix_geodesic_distance(R, R.flip(0))):
+            out, grads = _gradients(fn, (R,))
+            ref, ref_grads = _tensor_kernels(monkeypatch, _gradients, fn, (R,))
+            assert torch.allclose(out, ref, atol=1e-12)
+            assert torch.allclose(grads[0], ref_grads[0], atol=1e-9)
+
+
+def test_batched_gradients_and_hessians_take_the_tensor_kernels_derivative():
+    # autograd's batched gradients (jacobian(vectorize=True)) and second derivatives run through the
+    # node's backward into the tensor kernel's own derivative
+    q = torch.tensor([0.9, -0.1, 0.3, 0.2], dtype=torch.float64)
+    fn = lambda x: tq.quat_to_euler(x, "ZXZ")
+    vectorized = torch.autograd.functional.jacobian(fn, q, vectorize=True)
+    assert torch.allclose(vectorized, torch.autograd.functional.jacobian(fn, q))
+    hessian = torch.autograd.functional.hessian(lambda x: fn(x).sum(), q)
+    two = torch.autograd.functional.hessian(lambda x: fn(torch.stack([x, x]))[0].sum(), q)
+    assert torch.allclose(hessian, two)

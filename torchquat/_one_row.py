@@ -1,0 +1,145 @@
+"""One rotation on the CPU, in Python floats.
+
+At one rotation every PyTorch operation costs its dispatch (2-5 us on the CPUs measured) whatever
+it computes, so a conversion of 15-25 operations takes 40-180 us, and autograd's backward adds a
+node per operation; no formula with fewer operations keeps the guarantees (pytorch-kinematics'
+13-operation matrix -> Euler is wrong at gimbal lock). Python's own floats cost about 0.05 us an
+operation. So a kernel given CPU tensors of one row each, with no trace, compile or ``torch.func``
+transform watching, reads them with ``tolist()`` (0.6 us; on the CPU there is no device to wait
+for), computes the same formulas in double precision, and writes a fresh tensor of the input's
+dtype (each entry rounded once: a float32 result is the float64 one rounded). Where a graph is
+recorded, one autograd node (:class:`_OneRowGradient`) holds the formulas' vector-Jacobian
+product, also in Python floats; a graph of the gradient (double backward) differentiates the tensor
+kernel instead, so higher derivatives are the tensor kernels' own.
+
+Anything unusual goes back to the tensor kernel (:func:`run` returns ``None``): a non-finite
+input, an exception from ``math`` (a zero quaternion's division, say), a row a formula leaves to it
+(:class:`Fallback`: collinear 6D columns with a gradient), a tensor subclass. The formulas are the
+kernels' own, with their choices (``torchquat._one_row_formulas``).
+"""
+
+import math
+import os
+from typing import Callable, NamedTuple, Optional, Sequence, Tuple
+
+import numpy
+import torch
+from torch import Tensor
+
+from ._closed_form import _legacy_batched
+
+# On by default; TORCHQUAT_ONE_ROW=0 (or setting this to False) leaves one row to the tensor kernels.
+ENABLED = os.environ.get("TORCHQUAT_ONE_ROW", "1").lower() not in ("0", "false", "no", "off")
+_NUMPY_DTYPES = {torch.float32: numpy.float32, torch.float64: numpy.float64}
+_isfinite = math.isfinite
+_tracing = torch._C._get_tracing_state
+_transforms_active = torch._C._are_functorch_transforms_active
+_is_compiling = torch.compiler.is_compiling
+_grad_enabled = torch.is_grad_enabled
+
+
+class Fallback(Exception):
+    """Raised by a formula for a row it leaves to the tensor kernel."""
+
+
+_FAILURES = (ZeroDivisionError, ValueError, OverflowError, Fallback)
+
+
+class OneRow(NamedTuple):
+    """A kernel's one-row form: the name of its functions in ``torchquat._one_row_formulas``
+    (``name(*rows, dtype, **static)`` of flat lists of floats returns a flat list or one float;
+    ``name_vjp`` the same and its vector-Jacobian product; looked up at the first call, since that
+    module reads the kernels' own tables), each input's row size, and the output's row shape."""
+
+    name: str
+    row_sizes: Tuple[int, ...]
+    out_shape: Tuple[int, ...]
+
+
+_FORMULAS = {}
+
+
+def _formula(name: str) -> Callable:
+    fn = _FORMULAS.get(name)
+    if fn is None:
+        from . import _one_row_formulas
+        fn = _FORMULAS[name] = getattr(_one_row_formulas, name)
+    return fn
+
+
+def _forward_ad_active() -> bool:
+    return getattr(torch.autograd.forward_ad, "_current_level", -1) >= 0
+
+
+def _flat(t: Tensor, size: int) -> list:
+    """The one row of ``t`` (a ``(1, ..., 1, row)`` tensor; a matrix row-major) as a list of floats."""
+    values = t.tolist()
+    row_dims = 2 if size == 9 and t.dim() >= 2 and t.shape[-1] == 3 else 1  # (a (..., 3, 3) matrix)
+    for _ in range(t.dim() - row_dims):  # the batch dims, all of size 1
+        values = values[0]
+    if row_dims == 2:
+        values = values[0] + values[1] + values[2]
+    return values
+
+
+def _tensor(values, dtype: torch.dtype, shape) -> Tensor:
+    return torch.from_numpy(numpy.array(values, dtype=_NUMPY_DTYPES[dtype]).reshape(shape))
+
+
+def run(one_row: OneRow, kernel: Callable, tensors: Sequence[Tensor], static) -> Optional[Tensor]:
+    """``one_row``'s formula on ``tensors`` of one row each, as a tensor of their dtype and batch
+    shape (with its gradient node where autograd records), or ``None`` where the tensor kernel must
+    run instead (see the module docstring). ``kernel``: the tensor kernel, for double backward."""
+    # (first: under compile a size test would guard the graph on its batch size, and under vmap a
+    # tensor's numel() is a sample's)
+    if not ENABLED or _is_compiling() or _transforms_active() or _tracing() is not None or _forward_ad_active():
+        return None
+    dtype = tensors[0].dtype
+    rows, batch_dims, records = [], 0, False
+    for t, size in zip(tensors, one_row.row_sizes):
+        # (then the cheapest tests: a batch of many rows pays one numel() and returns)
+        if t.numel() != size or type(t) is not Tensor or not t.is_cpu or t.dtype is not dtype:
+            return None
+        records = records or t.requires_grad
+        rows.append(_flat(t, size))
+        batch_dims = max(batch_dims, t.dim() - (2 if size == 9 and t.dim() >= 2 and t.shape[-1] == 3 else 1))
+    # (one sum is finite only if every term is: NaN and inf take the tensor kernel's way)
+    if dtype not in _NUMPY_DTYPES or not _isfinite(sum(sum(r) for r in rows)):
+        return None
+    shape = (1,) * batch_dims + one_row.out_shape
+    records = records and _grad_enabled()
+    try:
+        if not records:
+            return _tensor(_formula(one_row.name)(*rows, dtype=dtype, **static), dtype, shape)
+        out, vjp = _formula(one_row.name + "_vjp")(*rows, dtype=dtype, **static)
+    except _FAILURES:
+        return None
+    return _OneRowGradient.apply(numpy.array(out, dtype=_NUMPY_DTYPES[dtype]).reshape(shape), vjp, kernel, static, *tensors)
+
+
+class _OneRowGradient(torch.autograd.Function):
+    """The node of a one-row call: its backward is the formulas' vector-Jacobian product."""
+
+    @staticmethod
+    def forward(ctx, out: numpy.ndarray, vjp: Callable, kernel: Callable, static: dict, *inputs: Tensor):
+        ctx.vjp, ctx.kernel, ctx.static = vjp, kernel, static
+        ctx.save_for_backward(*inputs)
+        return torch.from_numpy(out)
+
+    @staticmethod
+    def backward(ctx, grad: Tensor):
+        inputs = ctx.saved_tensors
+        wanted = ctx.needs_input_grad[4:]
+        create_graph = _grad_enabled()
+        if create_graph or _legacy_batched(grad) or type(grad) is not Tensor:
+            # A graph of the gradient (double backward), or autograd's batched gradients: the
+            # tensor kernel's own derivative, of views of the inputs (as _closed_form does)
+            with torch.enable_grad():
+                views = [x.view_as(x) for x in inputs]
+                output = ctx.kernel(*views, **ctx.static)
+                targets = [x for x, w in zip(views, wanted) if w]
+                found = iter(torch.autograd.grad(output, targets, grad, create_graph=create_graph, allow_unused=True))
+            return (None, None, None, None, *(next(found) if w else None for w in wanted))
+        grads = ctx.vjp(_flat(grad, grad.numel()) if grad.dim() else [grad.tolist()])
+        return (None, None, None, None, *(_tensor(g, x.dtype, x.shape) if w else None
+                                          for g, x, w in zip(grads, inputs, wanted)))
