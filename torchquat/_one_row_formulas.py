@@ -192,18 +192,18 @@ def _euler_constants(name: str):
 _EULER = {name: _euler_constants(name) for name in EULER_CONVENTIONS}
 
 
-def _angles(q, conv: EulerConvention, eps: float):
-    """The angles of ``q`` (any non-zero scale): the small kernels' layout of Bernardes and Viollet's
-    forms (``torchquat._euler_small``: ``t1``'s pair times 2, the double angles negated, so that
-    their ``atan2`` is shifted by pi, and ``(Z, |abcd|^2)``), divided by ``|abcd|^2``, then its
-    choices (values path)."""
+def _quat_layout(q, conv: EulerConvention):
+    """The small kernels' layout of Bernardes and Viollet's forms of ``q`` (any non-zero scale;
+    ``torchquat._euler_small``: ``t1``'s pair times 2, the double angles negated, so that their
+    ``atan2`` is shifted by pi, and ``Z``), ``t1``'s pair and ``Z`` divided by ``|abcd|^2``; and
+    ``(a, b, c, d)`` and ``1 / |abcd|^2`` for the gradient."""
     ((i0, c0, i1, c1), (j0, e0, j1, e1), (k0, f0, k1, f1), (l0, g0, l1, g1)), tb, z_sign, _ = _EULER[conv.name]
     a, b, c, d = (c0 * q[i0] + c1 * q[i1], e0 * q[j0] + e1 * q[j1], f0 * q[k0] + f1 * q[k1], g0 * q[l0] + g1 * q[l1])
     aa, bb, cc, dd = a * a, b * b, c * c, d * d
     scale = 1.0 / ((aa + bb) + (cc + dd))  # (q = 0: ZeroDivisionError, the kernel's NaN)
     # (+ 0.0: a zero form is +0, as the kernels' sums give it; atan2(-0.0, -1) would be -pi)
-    return _layout_angles(2.0 * (b * c - a * d) * scale + 0.0, 2.0 * (a * c + b * d) * scale, -2.0 * tb * a * b + 0.0,
-                          bb - aa, -2.0 * tb * c * d + 0.0, dd - cc, z_sign * ((aa + bb) - (cc + dd)) * scale + 0.0, conv, eps)
+    return ((2.0 * (b * c - a * d) * scale + 0.0, 2.0 * (a * c + b * d) * scale, -2.0 * tb * a * b + 0.0, bb - aa,
+             -2.0 * tb * c * d + 0.0, dd - cc, z_sign * ((aa + bb) - (cc + dd)) * scale + 0.0), (a, b, c, d), scale)
 
 
 def _layout_angles(y0, x0, y1, x1, y2, x2, z, conv: EulerConvention, eps: float):
@@ -227,7 +227,7 @@ def _layout_angles(y0, x0, y1, x1, y2, x2, z, conv: EulerConvention, eps: float)
 
 
 def quat_to_euler(q, dtype=None, *, convention: EulerConvention, eps: float):
-    return _angles(q, convention, eps)
+    return _layout_angles(*_quat_layout(q, convention)[0], convention, eps)
 
 
 def _matrix_layout_terms(name: str):
@@ -532,13 +532,9 @@ def _layout_angles_vjp(y0, x0, y1, x1, y2, x2, z, conv: EulerConvention, eps: fl
 
 
 def quat_to_euler_vjp(q, dtype=None, *, convention: EulerConvention, eps: float):
-    ((i0, c0, i1, c1), (j0, e0, j1, e1), (k0, f0, k1, f1), (l0, g0, l1, g1)), tb, z_sign, _ = _EULER[convention.name]
-    a, b, c, d = (c0 * q[i0] + c1 * q[i1], e0 * q[j0] + e1 * q[j1], f0 * q[k0] + f1 * q[k1], g0 * q[l0] + g1 * q[l1])
-    aa, bb, cc, dd = a * a, b * b, c * c, d * d
-    scale = 1.0 / ((aa + bb) + (cc + dd))
-    angles, entries_vjp = _layout_angles_vjp(
-        2.0 * (b * c - a * d) * scale + 0.0, 2.0 * (a * c + b * d) * scale, -2.0 * tb * a * b + 0.0, bb - aa,
-        -2.0 * tb * c * d + 0.0, dd - cc, z_sign * ((aa + bb) - (cc + dd)) * scale + 0.0, convention, eps)
+    _, tb, z_sign, _ = _EULER[convention.name]
+    entries, (a, b, c, d), scale = _quat_layout(q, convention)
+    angles, entries_vjp = _layout_angles_vjp(*entries, convention, eps)
 
     def vjp(g):
         # through the entries' forms in (a, b, c, d); the scaled ones (y0, x0, z) by 1 / |abcd|^2
