@@ -4,6 +4,7 @@ singular sets, round once to the input's dtype, issue no tensor operation but th
 leave every other call (gradients, NaN, compile, vmap, tracing) to the tensor kernels."""
 
 import math
+import pickle
 
 import pytest
 import torch
@@ -84,6 +85,8 @@ def test_one_row_keeps_batch_shape_dtype_and_gives_fresh_memory(batch):
     out = tq.quat_rotate(q, v)
     out.add_(1.0)  # writable, and not the input's memory
     assert torch.equal(v, torch.tensor([1.0, 2.0, 3.0]).reshape(batch + (3,)))
+    R.share_memory_()  # (NumPy-backed, as torch.from_numpy's: shared, pickled and sent to DataLoader
+    assert R.is_shared() and torch.equal(pickle.loads(pickle.dumps(R)), R)  # workers as any tensor)
     half = q.to(torch.bfloat16)  # computed in float32, returned in bfloat16
     assert torch.equal(tq.quat_to_matrix(half), tq.quat_to_matrix(half.float()).to(torch.bfloat16))
 
