@@ -48,12 +48,12 @@ def test_rows_for_all_24_conventions(default_run, oracle, function):
     expected = CONVENTIONS if (oracle, function) != ("pk", "matrix_to_euler") else {
         c for c in CONVENTIONS if c.isupper()}  # pytorch-kinematics has intrinsic only
     in_json = {r["case"].split(" ")[0] for r in default_run[3]["rows"]
-               if r["oracle"] == oracle and r["function"] == function}
+               if r["oracle"] == oracle and r["function"] == function and "one row" not in r["case"]}
     assert in_json == expected
     printed = set()
     for line in default_run[1].split("Worst case")[0].splitlines():  # the full table
         cells = [c.strip() for c in line.strip("|").split("|")]
-        if len(cells) == 7 and cells[0] == function and cells[2] == oracle:
+        if len(cells) == 7 and cells[0] == function and cells[2] == oracle and "one row" not in cells[1]:
             printed.add(cells[1].split(" ")[0])
     assert printed == expected
 
@@ -64,6 +64,15 @@ def test_table_has_every_column_and_the_tolerances(default_run):
     assert "| quat_to_euler" in out and "| scipy " in out and "| pk " in out
     for r in default_run[3]["rows"]:
         assert r["status"] == "PASS" and r["tolerance"] > 0
+
+
+def test_one_row_at_a_time_rows_for_every_function_with_a_one_row_path(default_run):
+    # a CPU call on one row computes in Python floats (torchquat._one_row): checked against SciPy too
+    one_row = {r["function"] for r in default_run[3]["rows"] if "one row at a time" in r["case"]}
+    assert one_row == {"quat_to_matrix", "matrix_to_quat", "axis_angle_to_quat", "quat_to_axis_angle",
+                       "axis_angle_to_matrix", "matrix_to_axis_angle", "quat_rotate", "quat_multiply",
+                       "quat_geodesic_distance", "matrix_geodesic_distance", "euler_to_quat", "euler_to_matrix",
+                       "quat_to_euler", "matrix_to_euler"}
 
 
 def test_convention_mappings_verified(default_run):
@@ -81,8 +90,11 @@ def _perturbed(fn, only=None):
 
 @pytest.mark.parametrize("name, only, failing", [
     ("quat_to_matrix", None, {("quat_to_matrix", case, oracle) for oracle in ("scipy", "pk")
-                              for case in ("random", "non-unit q", "small angle", "half turn", "near half turn")}),
-    ("euler_to_quat", "ZYX", {("euler_to_quat", "ZYX", "scipy"), ("euler_to_quat", "ZYX (rzyx)", "pk")}),
+                              for case in ("random", "non-unit q", "small angle", "half turn", "near half turn")}
+     | {("quat_to_matrix", case + ", one row at a time", "scipy")
+        for case in ("random", "non-unit q", "small angle", "half turn", "near half turn")}),
+    ("euler_to_quat", "ZYX", {("euler_to_quat", "ZYX", "scipy"), ("euler_to_quat", "ZYX (rzyx)", "pk"),
+                              ("euler_to_quat", "24 conventions, one row at a time", "scipy")}),
 ])
 def test_a_broken_function_fails_and_is_named(tmp_path, monkeypatch, name, only, failing):
     monkeypatch.setattr(torchquat, name, _perturbed(getattr(torchquat, name), only))

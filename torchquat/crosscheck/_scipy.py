@@ -65,60 +65,90 @@ class _SciPy:
             return torch.from_numpy(np.asarray(r.as_euler(convention)).copy())
 
 
+ONE_ROW_ROWS = 48  # rows of each set that are also converted one at a time
+
+
 def run_checks(ctx: Context, transform, n: int, generator: torch.Generator) -> None:
     """Add every SciPy row to ``ctx``."""
     sp = _SciPy(transform)
-    _conversions(ctx, sp, rotation_sets(n, generator))
+    sets = rotation_sets(n, generator)
+    _conversions(ctx, sp, sets)
+    # the same rows one at a time: a CPU call on one row computes in Python floats (torchquat._one_row)
+    _conversions(ctx, sp, {f"{case}, one row at a time": {k: v[:ONE_ROW_ROWS] for k, v in s.items()}
+                           for case, s in sets.items()}, wrap=one_row_each)
     _algebra(ctx, sp, n, generator)
+    _algebra(ctx, sp, ONE_ROW_ROWS, torch.Generator().manual_seed(n), wrap=one_row_each, suffix=", one row at a time")
     _euler(ctx, sp, n, generator)
+    _euler_one_row(ctx, sp, generator)
 
 
-def _conversions(ctx: Context, sp: _SciPy, sets: Dict[str, Dict[str, Tensor]]) -> None:
+def one_row_each(fn):
+    """``fn`` called on each row of its tensor arguments alone (other arguments passed as they are),
+    the results stacked."""
+    def each(*args):
+        tensors = [a for a in args if isinstance(a, Tensor)]
+        out = []
+        for i in range(len(tensors[0])):
+            rows = iter(t[i] for t in tensors)
+            out.append(fn(*(next(rows) if isinstance(a, Tensor) else a for a in args)))
+        return torch.stack(out)
+    return each
+
+
+def _same(fn):
+    return fn
+
+
+def _conversions(ctx: Context, sp: _SciPy, sets: Dict[str, Dict[str, Tensor]], wrap=_same) -> None:
     for case, s in sets.items():
         q, q_ref = ctx.split(s["q"])
         R, R_ref = ctx.split(s["R"])
         v, v_ref = ctx.split(s["rotvec"])
         add = lambda fn, metric, tol, compute: ctx.check(fn, case, ORACLE, metric, tol, compute)  # noqa: E731
         # rows whose input is not q: the non-unit set's R and rotvec are "random"'s, so skip them
-        add_other = add if case != "non-unit q" else (lambda *args: None)  # noqa: E731
+        add_other = add if not case.startswith("non-unit q") else (lambda *args: None)  # noqa: E731
         add("quat_to_matrix", "matrix", TIGHT,
-            lambda: err_abs(tq.quat_to_matrix(q), sp.matrix(sp.from_quat(q_ref))))
+            lambda: err_abs(wrap(tq.quat_to_matrix)(q), sp.matrix(sp.from_quat(q_ref))))
         add_other("matrix_to_quat", "quat (+-)", TIGHT,
-                  lambda: err_quat(tq.matrix_to_quat(R), sp.quat(sp.from_matrix(R_ref))))
+                  lambda: err_quat(wrap(tq.matrix_to_quat)(R), sp.quat(sp.from_matrix(R_ref))))
         add_other("axis_angle_to_quat", "quat (+-)", TIGHT,
-                  lambda: err_quat(tq.axis_angle_to_quat(v), sp.quat(sp.Rotation.from_rotvec(v_ref.numpy()))))
+                  lambda: err_quat(wrap(tq.axis_angle_to_quat)(v), sp.quat(sp.Rotation.from_rotvec(v_ref.numpy()))))
         add("quat_to_axis_angle", "rotvec", TIGHT,
-            lambda: err_rotvec(tq.quat_to_axis_angle(q), sp.rotvec(sp.from_quat(q_ref))))
+            lambda: err_rotvec(wrap(tq.quat_to_axis_angle)(q), sp.rotvec(sp.from_quat(q_ref))))
         add_other("axis_angle_to_matrix", "matrix", TIGHT,
-                  lambda: err_abs(tq.axis_angle_to_matrix(v), sp.matrix(sp.Rotation.from_rotvec(v_ref.numpy()))))
+                  lambda: err_abs(wrap(tq.axis_angle_to_matrix)(v), sp.matrix(sp.Rotation.from_rotvec(v_ref.numpy()))))
         add_other("matrix_to_axis_angle", "rotvec", TIGHT,
-                  lambda: err_rotvec(tq.matrix_to_axis_angle(R), sp.rotvec(sp.from_matrix(R_ref))))
+                  lambda: err_rotvec(wrap(tq.matrix_to_axis_angle)(R), sp.rotvec(sp.from_matrix(R_ref))))
         vec = torch.randn(len(q), 3, generator=torch.Generator().manual_seed(len(q)), dtype=F64)
         x, x_ref = ctx.split(vec)
         add("quat_rotate", "vector", TIGHT,
-            lambda: err_abs(tq.quat_rotate(q, x), torch.from_numpy(sp.from_quat(q_ref).apply(x_ref.numpy()))))
+            lambda: err_abs(wrap(tq.quat_rotate)(q, x), torch.from_numpy(sp.from_quat(q_ref).apply(x_ref.numpy()))))
 
 
-def _algebra(ctx: Context, sp: _SciPy, n: int, generator: torch.Generator) -> None:
+def _algebra(ctx: Context, sp: _SciPy, n: int, generator: torch.Generator, wrap=_same, suffix: str = "") -> None:
     for case, (p64, q64) in pair_sets(n, generator).items():
         p, p_ref = ctx.split(p64)
         q, q_ref = ctx.split(q64)
         Rp, Rp_ref = ctx.split(definition_matrix(p64))
         Rq, Rq_ref = ctx.split(definition_matrix(q64))
         rp, rq = sp.from_quat(p_ref), sp.from_quat(q_ref)
-        add = lambda fn, metric, tol, compute: ctx.check(fn, case, ORACLE, metric, tol, compute)  # noqa: E731
-        add("quat_multiply", "quat (+-)", TIGHT, lambda: err_quat(tq.quat_multiply(p, q), sp.quat(rp * rq)))
+        add = lambda fn, metric, tol, compute: ctx.check(fn, case + suffix, ORACLE, metric, tol, compute)  # noqa: E731
+        add("quat_multiply", "quat (+-)", TIGHT, lambda: err_quat(wrap(tq.quat_multiply)(p, q), sp.quat(rp * rq)))
         add("quat_geodesic_distance", "radians", TIGHT,
-            lambda: err_abs(tq.quat_geodesic_distance(p, q), torch.from_numpy((rp.inv() * rq).magnitude())))
+            lambda: err_abs(wrap(tq.quat_geodesic_distance)(p, q), torch.from_numpy((rp.inv() * rq).magnitude())))
         add("matrix_geodesic_distance", "radians", TIGHT,
-            lambda: err_abs(tq.matrix_geodesic_distance(Rp, Rq),
+            lambda: err_abs(wrap(tq.matrix_geodesic_distance)(Rp, Rq),
                             torch.from_numpy((sp.from_matrix(Rp_ref).inv() * sp.from_matrix(Rq_ref)).magnitude())))
+        if suffix:  # (slerp and rot9d have no one-row form)
+            continue
         if case in ("random", "close"):  # half a turn apart the shortest path is not unique
             # t on a 2**-20 grid: exact in float32, and 2k + t (the spline's time) exact in float64
             t = torch.randint(0, 2**20 + 1, (len(p),), generator=generator).to(F64) / 2**20
             t, t_ref = ctx.split(t)
             add("quat_slerp", "quat (+-)", TIGHT,
                 lambda: err_quat(tq.quat_slerp(p, q, t), _slerp(sp, p_ref, q_ref, t_ref)))
+    if suffix:
+        return
     # rot9d: SciPy's from_matrix maps a matrix with det > 0 to the nearest rotation (Markley 2008)
     M = torch.randn(n, 3, 3, generator=generator, dtype=F64)
     M = torch.where(torch.linalg.det(M)[:, None, None] < 0, -M, M)
@@ -175,3 +205,29 @@ def _euler(ctx: Context, sp: _SciPy, n: int, generator: torch.Generator) -> None
                 lambda: err_abs(rot()[band], torch.zeros(int(band.sum()), dtype=F64)))
     ctx.check("convention mapping", "from_euler vs definition (24)", ORACLE, "quat (+-)", (1e-14, 1e-14),
               lambda: worst[0], note=f"worst {worst[1]}" if worst[0] > 1e-14 else "")
+
+
+def _euler_one_row(ctx: Context, sp: _SciPy, generator: torch.Generator) -> None:
+    """The four Euler functions one row at a time, over all 24 conventions (one report row each):
+    random angles and angles exactly at lock both ways; back from their quaternions and matrices,
+    compared as rotations (at lock the angles are the rule's, checked by the batch rows above)."""
+    errors = {"euler_to_quat": 0.0, "euler_to_matrix": 0.0, "quat_to_euler": 0.0, "matrix_to_euler": 0.0}
+    for convention in tq.EULER_CONVENTIONS:
+        sets = euler_sets(convention, ONE_ROW_ROWS // 2, generator)
+        A64 = torch.cat((sets["random"], sets["lock"][::4]))
+        a, a_ref = ctx.split(A64)
+        each = lambda fn: one_row_each(lambda x: fn(x, convention))  # noqa: E731
+        errors["euler_to_quat"] = max(errors["euler_to_quat"], err_quat(each(tq.euler_to_quat)(a),
+                                                                          sp.quat(sp.from_euler(convention, a_ref))))
+        errors["euler_to_matrix"] = max(errors["euler_to_matrix"], err_abs(each(tq.euler_to_matrix)(a),
+                                                                            sp.matrix(sp.from_euler(convention, a_ref))))
+        Q64 = definition_quat(A64, convention)
+        for fn, ours_fn, x64 in (("quat_to_euler", tq.quat_to_euler, Q64), ("matrix_to_euler", tq.matrix_to_euler,
+                                                                            definition_matrix(Q64))):
+            x, x_ref = ctx.split(x64)
+            target = sp.matrix(sp.from_quat(x_ref) if fn == "quat_to_euler" else sp.from_matrix(x_ref))
+            ours = each(ours_fn)(x).to(F64)
+            errors[fn] = max(errors[fn], err_abs(sp.matrix(sp.from_euler(convention, ours)), target))
+    for fn, error in errors.items():
+        metric = {"euler_to_quat": "quat (+-)", "euler_to_matrix": "matrix"}.get(fn, "rotation")
+        ctx.check(fn, "24 conventions, one row at a time", ORACLE, metric, TIGHT, lambda e=error: e)
