@@ -16,7 +16,8 @@ kernel instead, so higher derivatives are the tensor kernels' own.
 Anything unusual goes back to the tensor kernel (:func:`run` returns ``None``): a non-finite
 input, an exception from ``math`` (a zero quaternion's division, say), a row a formula leaves to it
 (:class:`Fallback`: collinear 6D columns with a gradient), a tensor subclass. The formulas are the
-kernels' own, with their choices (``torchquat._one_row_formulas``).
+kernels' own, with their choices (``torchquat._one_row_formulas``; their gradients in
+``torchquat._one_row_gradients``).
 """
 
 import math
@@ -47,10 +48,11 @@ _FAILURES = (ZeroDivisionError, ValueError, OverflowError, Fallback)
 
 
 class OneRow(NamedTuple):
-    """A kernel's one-row form: the name of its functions in ``torchquat._one_row_formulas``
-    (``name(*rows, dtype, **static)`` of flat lists of floats returns a flat list or one float;
-    ``name_vjp`` the same and its vector-Jacobian product; looked up at the first call, since that
-    module reads the kernels' own tables), each input's row size, and the output's row shape."""
+    """A kernel's one-row form: the name of its functions (``torchquat._one_row_formulas.name(*rows,
+    dtype, **static)`` of flat lists of floats returns a flat list or one float;
+    ``torchquat._one_row_gradients.name_vjp`` the same and its vector-Jacobian product; looked up at
+    the first call, since those modules read the kernels' own tables), each input's row size, and
+    the output's row shape."""
 
     name: str
     row_sizes: Tuple[int, ...]
@@ -63,8 +65,8 @@ _FORMULAS = {}
 def _formula(name: str) -> Callable:
     fn = _FORMULAS.get(name)
     if fn is None:
-        from . import _one_row_formulas
-        fn = _FORMULAS[name] = getattr(_one_row_formulas, name)
+        from . import _one_row_formulas, _one_row_gradients
+        fn = _FORMULAS[name] = getattr(_one_row_gradients if name.endswith("_vjp") else _one_row_formulas, name)
     return fn
 
 
