@@ -289,7 +289,8 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
     compile time in bounds); nowhere else.
 
     ``one_row`` (a :class:`torchquat._one_row.OneRow`): the kernel's formulas in Python floats, which
-    a call on one CPU row with nothing to differentiate takes (see ``torchquat._one_row``).
+    a call on one CPU row takes, with one autograd node of its own where a graph is recorded (see
+    ``torchquat._one_row``).
     """
     if fn is None:
         return functools.partial(kernel, blocked_row_dims=blocked_row_dims, compiled_from_rows=compiled_from_rows,
