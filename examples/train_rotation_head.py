@@ -28,7 +28,6 @@ Writes ``train_rotation_head.md`` (the table) and ``train_rotation_head.png`` (e
 """
 
 import argparse
-import math
 import os
 import sys
 import time
