@@ -72,7 +72,7 @@ def test_one_row_at_a_time_rows_for_every_function_with_a_one_row_path(default_r
     assert one_row == {"quat_to_matrix", "matrix_to_quat", "axis_angle_to_quat", "quat_to_axis_angle",
                        "axis_angle_to_matrix", "matrix_to_axis_angle", "quat_rotate", "quat_multiply",
                        "quat_geodesic_distance", "matrix_geodesic_distance", "euler_to_quat", "euler_to_matrix",
-                       "quat_to_euler", "matrix_to_euler"}
+                       "quat_to_euler", "matrix_to_euler", "quat_slerp"}
 
 
 def test_convention_mappings_verified(default_run):

@@ -62,11 +62,13 @@ class OneRow(NamedTuple):
 _FORMULAS = {}
 
 
-def _formula(name: str) -> Callable:
-    fn = _FORMULAS.get(name)
-    if fn is None:
+def _formula(name: str) -> Optional[Callable]:
+    """The function ``name`` of the formulas (or, for ``..._vjp``, the gradients) module; ``None``
+    for a kernel whose one-row form has values only (slerp: with a graph, the tensor kernel)."""
+    fn = _FORMULAS.get(name, False)
+    if fn is False:
         from . import _one_row_formulas, _one_row_gradients
-        fn = _FORMULAS[name] = getattr(_one_row_gradients if name.endswith("_vjp") else _one_row_formulas, name)
+        fn = _FORMULAS[name] = getattr(_one_row_gradients if name.endswith("_vjp") else _one_row_formulas, name, None)
     return fn
 
 
@@ -77,13 +79,19 @@ def _forward_ad_active() -> bool:
     return getattr(_forward_ad, "_current_level", -1) >= 0
 
 
+def _row_dims(t: Tensor, size: int) -> int:
+    """How many of ``t``'s trailing dims are its row: 2 for a ``(..., 3, 3)`` matrix, 0 for a number
+    per row (slerp's ``t``), else 1."""
+    return 0 if size == 1 else 2 if size == 9 and t.shape[-1] == 3 else 1
+
+
 def _flat(t: Tensor, size: int) -> list:
     """The one row of ``t`` (a ``(1, ..., 1, row)`` tensor; a matrix row-major) as a list of floats."""
     values = t.tolist()
-    row_dims = 2 if size == 9 and t.shape[-1] == 3 else 1  # (a (..., 3, 3) matrix)
+    row_dims = _row_dims(t, size)
     for _ in range(t.dim() - row_dims):  # the batch dims, all of size 1
         values = values[0]
-    return values[0] + values[1] + values[2] if row_dims == 2 else values
+    return values[0] + values[1] + values[2] if row_dims == 2 else [values] if row_dims == 0 else values
 
 
 def _tensor(values, dtype: torch.dtype, shape) -> Tensor:
@@ -112,14 +120,17 @@ def run(one_row: OneRow, kernel: Callable, tensors: Sequence[Tensor], static) ->
         values = _flat(t, size)
         total += sum(values)
         rows.append(values)
-        batch_dims = max(batch_dims, t.dim() - (2 if size == 9 and t.shape[-1] == 3 else 1))
+        batch_dims = max(batch_dims, t.dim() - _row_dims(t, size))
     if not _isfinite(total):  # (a sum is finite only if every term is: NaN and inf take the tensor kernel's way)
         return None
     shape = (1,) * batch_dims + one_row.out_shape
     try:
         if not (records and _grad_enabled()):
             return _tensor(_formula(one_row.name)(*rows, dtype=dtype, **static), dtype, shape)
-        out, vjp = _formula(one_row.name + "_vjp")(*rows, dtype=dtype, **static)
+        with_gradient = _formula(one_row.name + "_vjp")
+        if with_gradient is None:
+            return None
+        out, vjp = with_gradient(*rows, dtype=dtype, **static)
     except _FAILURES:
         return None
     return _OneRowGradient.apply(numpy.array(out, dtype=_NUMPY_DTYPES[dtype]).reshape(shape), vjp, kernel, static, *tensors)

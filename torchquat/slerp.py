@@ -10,6 +10,7 @@ from torch import Tensor
 from . import _closed_form as closed_form
 from ._closed_form import Rule
 from ._dispatch import kernel
+from ._one_row import OneRow
 from ._math import constant, is_small, sum_of_products, sum_of_squares
 from ._planes import columns, plane_buffer, rows, slot
 from ._validation import check_broadcast, prepare_pair, restore
@@ -183,7 +184,7 @@ def _slerp_small(q0: Tensor, q1: Tensor, t: Tensor, share: float) -> bool:
     return is_small(q0, 4, share) and is_small(q1, 4, share) and is_small(t, 1, share)
 
 
-@kernel(blocked_row_dims=(1, 1, 0))
+@kernel(blocked_row_dims=(1, 1, 0), one_row=OneRow("quat_slerp", (4, 4, 1), (4,)))
 def quat_slerp_unchecked(q0: Tensor, q1: Tensor, t: Tensor) -> Tensor:
     """Unchecked :func:`quat_slerp` of ``(..., 4)`` inputs with ``t`` of (broadcasting) batch shape."""
     if torch.compiler.is_compiling():  # (one fused loop, and autograd of it)

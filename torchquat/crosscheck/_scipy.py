@@ -139,15 +139,13 @@ def _algebra(ctx: Context, sp: _SciPy, n: int, generator: torch.Generator, wrap=
         add("matrix_geodesic_distance", "radians", TIGHT,
             lambda: err_abs(wrap(tq.matrix_geodesic_distance)(Rp, Rq),
                             torch.from_numpy((sp.from_matrix(Rp_ref).inv() * sp.from_matrix(Rq_ref)).magnitude())))
-        if suffix:  # (slerp and rot9d have no one-row form)
-            continue
         if case in ("random", "close"):  # half a turn apart the shortest path is not unique
             # t on a 2**-20 grid: exact in float32, and 2k + t (the spline's time) exact in float64
             t = torch.randint(0, 2**20 + 1, (len(p),), generator=generator).to(F64) / 2**20
             t, t_ref = ctx.split(t)
             add("quat_slerp", "quat (+-)", TIGHT,
-                lambda: err_quat(tq.quat_slerp(p, q, t), _slerp(sp, p_ref, q_ref, t_ref)))
-    if suffix:
+                lambda: err_quat(wrap(tq.quat_slerp)(p, q, t), _slerp(sp, p_ref, q_ref, t_ref)))
+    if suffix:  # (rot9d has no one-row form)
         return
     # rot9d: SciPy's from_matrix maps a matrix with det > 0 to the nearest rotation (Markley 2008)
     M = torch.randn(n, 3, 3, generator=generator, dtype=F64)
