@@ -18,8 +18,7 @@ ONE_ROW = sorted(name for name in ALL if name.split("[")[0] in {
     "quat_to_matrix", "matrix_to_quat", "quat_multiply", "quat_rotate", "axis_angle_to_quat", "quat_to_axis_angle",
     "axis_angle_to_matrix", "matrix_to_axis_angle", "rot6d_to_matrix", "quat_geodesic_distance",
     "matrix_geodesic_distance", "euler_to_quat", "euler_to_matrix", "quat_to_euler", "matrix_to_euler", "quat_slerp"})
-# ... and a one-row gradient node (slerp's one-row form has values only)
-WITH_GRADIENT = [name for name in ONE_ROW if name != "quat_slerp"]
+WITH_GRADIENT = ONE_ROW  # (every one-row form has its gradient node; run() allows one without)
 TOLERANCE = {torch.float64: 1e-12, torch.float32: 2e-6}
 
 
@@ -41,7 +40,7 @@ def _assert_same(name, got, expected, atol):
 
 
 def test_every_one_row_function_is_covered():
-    assert len(ONE_ROW) == 12 + 4 * 24 and len(WITH_GRADIENT) == 11 + 4 * 24
+    assert len(ONE_ROW) == 12 + 4 * 24
 
 
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32], ids=str)
@@ -65,8 +64,8 @@ def test_one_row_issues_no_tensor_operation_but_its_output(name):
     assert one.names == (["full", "lift_fresh"] if name == "quat_slerp" else ["lift_fresh"]) and len(two.names) > 3
 
 
-@pytest.mark.parametrize("name", WITH_GRADIENT)  # (slerp's t = 0.3 is rounded to each dtype: below)
-def test_float32_is_the_float64_result_rounded_once(name):
+@pytest.mark.parametrize("name", [n for n in ONE_ROW if n != "quat_slerp"])  # (slerp's t = 0.3 is rounded
+def test_float32_is_the_float64_result_rounded_once(name):  # to each dtype: test_slerp_one_row)
     fn, generic, _ = ALL[name]
     for i in range(3):  # (generic rows: no lock test or collinearity threshold between the dtypes)
         inputs = tuple(x[i].float() for x in generic())
@@ -169,15 +168,18 @@ def test_one_row_gradients_are_the_tensor_kernels(name, kind, monkeypatch):
                            [g[None] for g in ref_grads], atol=1e-12, grad_atol=1e-9, grad_rtol=1e-9)
 
 
-def test_slerp_with_a_gradient_takes_the_tensor_kernel():
+def test_slerp_one_row(monkeypatch):
     q0 = torch.tensor([0.9, -0.1, 0.3, 0.2], dtype=torch.float64, requires_grad=True)
     q1 = torch.tensor([0.1, 0.8, -0.3, 0.6], dtype=torch.float64)  # (not orthogonal to q0: no arc tie)
-    out = tq.quat_slerp(q0, q1, 0.25)
-    assert type(out.grad_fn).__name__ == "_ClosedFormBackward"
-    with torch.no_grad():  # and without one, the one-row values
-        with DispatchRecorder() as recorder:
-            value = tq.quat_slerp(q0, q1, 0.25)
-    assert torch.allclose(value, out, atol=1e-15) and recorder.names.count("lift_fresh") == 1
+    t = torch.tensor(0.25, dtype=torch.float64, requires_grad=True)
+    out, grads = _gradients(tq.quat_slerp, (q0, q1, t))
+    ref, ref_grads = _tensor_kernels(monkeypatch, _gradients, tq.quat_slerp, (q0, q1, t))
+    assert torch.allclose(out, ref, atol=1e-15) and all(torch.allclose(a, b, atol=1e-12) for a, b in zip(grads, ref_grads))
+    # a formula without a gradient (run() allows one) leaves a recorded call to the tensor kernel
+    import torchquat._one_row_gradients as gradients
+    monkeypatch.delattr(gradients, "quat_slerp_vjp")
+    monkeypatch.setattr(one_row, "_FORMULAS", {})
+    assert type(tq.quat_slerp(q0, q1, t).grad_fn).__name__ == "_ClosedFormBackward"
     t = torch.tensor(0.25, dtype=torch.float32)
     q0, q1 = q0.detach().float(), q1.float()  # float32 is the float64 result rounded once
     assert torch.equal(tq.quat_slerp(q0, q1, t), tq.quat_slerp(q0.double(), q1.double(), t.double()).float())

@@ -277,28 +277,33 @@ def euler_to_matrix(angles, dtype=None, *, convention: EulerConvention):
     return quat_to_matrix(_euler_quat(angles, convention))
 
 
-# -- slerp (values only: with a graph to record, the tensor kernel's closed form) --------------------
+# -- slerp -----------------------------------------------------------------------------------------
 
-def quat_slerp(q0, q1, t, dtype=None):
-    # torchquat.slerp's rows: the normalised inputs, q1 negated where <p, q> < -8 eps (the arcs equally
-    # short to rounding below that), the angle 2 atan2(|p - q|, |p + q|), and below a chord^2 of
-    # sqrt(eps) the weights' series in a^2 = c^2 + c^4 / 12 (eps the input dtype's, as the kernel's)
+def _slerp_parts(q0, q1, t, dtype):
+    """torchquat.slerp's rows: the normalised inputs, q1 negated where ``<p, q> < -8 eps`` (the arcs
+    equally short to rounding below that), the angle ``2 atan2(|p - q|, |p + q|)``, and below a
+    chord^2 of sqrt(eps) the weights' series in ``a^2 = c^2 + c^4 / 12`` (eps the input dtype's, as
+    the kernel's). Returns the output and what the gradient needs."""
     eps = _EPS[dtype]
     n0 = 1.0 / _sqrt(q0[0] * q0[0] + q0[1] * q0[1] + q0[2] * q0[2] + q0[3] * q0[3])
     n1 = 1.0 / _sqrt(q1[0] * q1[0] + q1[1] * q1[1] + q1[2] * q1[2] + q1[3] * q1[3])
     p = [c * n0 for c in q0]
     q = [c * n1 for c in q1]
     if p[0] * q[0] + p[1] * q[1] + p[2] * q[2] + p[3] * q[3] < -8.0 * eps:
-        q = [-c for c in q]
+        q, n1 = [-c for c in q], -n1
     square = sum((a - b) * (a - b) for a, b in zip(p, q))
-    s = t[0]
-    times = (1.0 - s, s)
-    if square < eps ** 0.5:
-        angle2 = square + square * square / 12.0
+    times = (1.0 - t[0], t[0])
+    small = square < eps ** 0.5
+    angle2 = square + square * square / 12.0
+    angle = sine = 1.0
+    if small:
         w = [x + x * (1.0 - x * x) * angle2 * (1.0 / 6.0 + (4.0 + 3.0 * (1.0 - x * x)) * angle2 / 360.0) for x in times]
     else:
         angle = 2.0 * _atan2(_sqrt(square), _hypot(*(a + b for a, b in zip(p, q))))
         sine = _sin(angle)
         w = [_sin(x * angle) / sine for x in times]
-    return [w[0] * a + w[1] * b for a, b in zip(p, q)]
+    return [w[0] * a + w[1] * b for a, b in zip(p, q)], (p, q, n0, n1, square, small, angle, sine, angle2, times, w)
 
+
+def quat_slerp(q0, q1, t, dtype=None):
+    return _slerp_parts(q0, q1, t, dtype)[0]

@@ -10,8 +10,8 @@ branch discards).
 from ._one_row import Fallback
 from ._one_row_formulas import (_EULER, _EULER_SIGNS, _MATRIX_LAYOUT, _atan2, _copysign, _cos, _cross, _hypot,
                                 _layout_angles, _matrix_distance_parts, _matrix_layout, _quat_distance_parts,
-                                _quat_layout, _sign_of_first_nonzero, _sin, _sqrt, hamilton_product, matrix_to_quat,
-                                quat_to_matrix, rot6d_to_matrix, rotate)
+                                _quat_layout, _sign_of_first_nonzero, _sin, _slerp_parts, _sqrt, hamilton_product,
+                                matrix_to_quat, quat_to_matrix, rot6d_to_matrix, rotate)
 from .conventions import EulerConvention
 
 def _quat_to_matrix_pullback(q, R):
@@ -329,3 +329,37 @@ def euler_to_matrix_vjp(angles, dtype=None, *, convention: EulerConvention):
     R = quat_to_matrix(q)
     to_q = _quat_to_matrix_pullback(q, R)
     return R, lambda g: (to_angles(to_q(g)),)
+
+
+def _slerp_weight_derivatives(x, square, small, angle, sine, angle2, weight):
+    """``d w / d square`` and ``d w / d x`` of the weight ``w = sin(x a) / sin(a)``, ``a`` the angle of
+    the chord (``d a / d square = 1 / (2 sin a)``), or of its series (``torchquat.slerp``'s)."""
+    if small:  # w = x + x u A (1/6 + (4 + 3 u) A / 360), u = 1 - x^2, A = square + square^2 / 12
+        u = 1.0 - x * x
+        inner = 1.0 / 6.0 + (4.0 + 3.0 * u) * angle2 / 360.0
+        d_square = x * u * (1.0 / 6.0 + (4.0 + 3.0 * u) * angle2 / 180.0) * (1.0 + square / 6.0)
+        return d_square, 1.0 + u * angle2 * inner - 2.0 * x * x * angle2 * (inner + u * angle2 / 120.0)
+    cos_x_angle = _cos(x * angle)  # d w / d a = (x cos(x a) - w cos(a)) / sin(a)
+    return (x * cos_x_angle - weight * _cos(angle)) / (2.0 * sine * sine), angle * cos_x_angle / sine
+
+
+def quat_slerp_vjp(q0, q1, t, dtype=None):
+    # torchquat.slerp's closed form for the pair (p, q): with G = (<g, p>, <g, q>) and W = G . dw / dsquare,
+    # the gradients are scale_k (w_k g +- 2 W (p - q) - (w_k G_k + W square) x_k) for x = (p, q), and
+    # G . (-dw0 / dx0, dw1 / dx1) for t
+    out, (p, q, n0, n1, square, small, angle, sine, angle2, times, w) = _slerp_parts(q0, q1, t, dtype)
+    (d_square0, d_x0), (d_square1, d_x1) = (_slerp_weight_derivatives(x, square, small, angle, sine, angle2, wk)
+                                            for x, wk in zip(times, w))
+    difference = [a - b for a, b in zip(p, q)]
+
+    def vjp(g):
+        G0 = g[0] * p[0] + g[1] * p[1] + g[2] * p[2] + g[3] * p[3]
+        G1 = g[0] * q[0] + g[1] * q[1] + g[2] * q[2] + g[3] * q[3]
+        W = G0 * d_square0 + G1 * d_square1
+        along0, along1 = W * square + w[0] * G0, W * square + w[1] * G1
+        return ([n0 * (w[0] * gi + 2.0 * W * di - along0 * pi) for gi, di, pi in zip(g, difference, p)],
+                [n1 * (w[1] * gi - 2.0 * W * di - along1 * qi) for gi, di, qi in zip(g, difference, q)],
+                [G1 * d_x1 - G0 * d_x0])
+
+    return out, vjp
+
