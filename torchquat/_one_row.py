@@ -28,14 +28,13 @@ import numpy
 import torch
 from torch import Tensor
 
-from ._closed_form import _legacy_batched
+from ._closed_form import _legacy_batched, _transformed
 
 # On by default; TORCHQUAT_ONE_ROW=0 (or setting this to False) leaves one row to the tensor kernels.
 ENABLED = os.environ.get("TORCHQUAT_ONE_ROW", "1").lower() not in ("0", "false", "no", "off")
 _NUMPY_DTYPES = {torch.float32: numpy.float32, torch.float64: numpy.float64}
 _isfinite = math.isfinite
 _tracing = torch._C._get_tracing_state
-_transforms_active = torch._C._are_functorch_transforms_active
 _is_compiling = torch.compiler.is_compiling
 _grad_enabled = torch.is_grad_enabled
 
@@ -64,19 +63,12 @@ _FORMULAS = {}
 
 def _formula(name: str) -> Optional[Callable]:
     """The function ``name`` of the formulas (or, for ``..._vjp``, the gradients) module; ``None``
-    for a kernel whose one-row form has values only (slerp: with a graph, the tensor kernel)."""
+    where there is none (a one-row form may have values only: a recorded call then takes the kernel)."""
     fn = _FORMULAS.get(name, False)
     if fn is False:
         from . import _one_row_formulas, _one_row_gradients
         fn = _FORMULAS[name] = getattr(_one_row_gradients if name.endswith("_vjp") else _one_row_formulas, name, None)
     return fn
-
-
-_forward_ad = torch.autograd.forward_ad
-
-
-def _forward_ad_active() -> bool:
-    return getattr(_forward_ad, "_current_level", -1) >= 0
 
 
 def _row_dims(t: Tensor, size: int) -> int:
@@ -85,10 +77,10 @@ def _row_dims(t: Tensor, size: int) -> int:
     return 0 if size == 1 else 2 if size == 9 and t.shape[-1] == 3 else 1
 
 
-def _flat(t: Tensor, size: int) -> list:
-    """The one row of ``t`` (a ``(1, ..., 1, row)`` tensor; a matrix row-major) as a list of floats."""
+def _flat(t: Tensor, row_dims: int) -> list:
+    """The one row of ``t`` (a ``(1, ..., 1, row)`` tensor of ``row_dims`` row dims; a matrix
+    row-major) as a list of floats."""
     values = t.tolist()
-    row_dims = _row_dims(t, size)
     for _ in range(t.dim() - row_dims):  # the batch dims, all of size 1
         values = values[0]
     return values[0] + values[1] + values[2] if row_dims == 2 else [values] if row_dims == 0 else values
@@ -105,8 +97,8 @@ def run(one_row: OneRow, kernel: Callable, tensors: Sequence[Tensor], static) ->
     shape (with its gradient node where autograd records), or ``None`` where the tensor kernel must
     run instead (see the module docstring). ``kernel``: the tensor kernel, for double backward."""
     # (first: under compile a size test would guard the graph on its batch size, and under vmap a
-    # tensor's numel() is a sample's)
-    if not ENABLED or _is_compiling() or _transforms_active() or _tracing() is not None or _forward_ad_active():
+    # tensor's numel() is a sample's; forward-mode AD would not see through the floats)
+    if not ENABLED or _is_compiling() or _transformed() or _tracing() is not None:
         return None
     dtype = tensors[0].dtype
     if dtype not in _NUMPY_DTYPES:
@@ -117,10 +109,11 @@ def run(one_row: OneRow, kernel: Callable, tensors: Sequence[Tensor], static) ->
         if t.numel() != size or type(t) is not Tensor or not t.is_cpu or t.dtype is not dtype:
             return None
         records = records or t.requires_grad
-        values = _flat(t, size)
+        row_dims = _row_dims(t, size)
+        values = _flat(t, row_dims)
         total += sum(values)
         rows.append(values)
-        batch_dims = max(batch_dims, t.dim() - _row_dims(t, size))
+        batch_dims = max(batch_dims, t.dim() - row_dims)
     if not _isfinite(total):  # (a sum is finite only if every term is: NaN and inf take the tensor kernel's way)
         return None
     shape = (1,) * batch_dims + one_row.out_shape
@@ -159,6 +152,6 @@ class _OneRowGradient(torch.autograd.Function):
                 targets = [x for x, w in zip(views, wanted) if w]
                 found = iter(torch.autograd.grad(output, targets, grad, create_graph=create_graph, allow_unused=True))
             return (None, None, None, None, *(next(found) if w else None for w in wanted))
-        grads = ctx.vjp(_flat(grad, grad.numel()) if grad.dim() else [grad.tolist()])
+        grads = ctx.vjp(_flat(grad, _row_dims(grad, grad.numel())))
         return (None, None, None, None, *(_tensor(g, x.dtype, x.shape) if w else None
                                           for g, x, w in zip(grads, inputs, wanted)))

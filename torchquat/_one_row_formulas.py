@@ -41,22 +41,27 @@ def quat_to_matrix(q, dtype=None):
             xz - wy, yz + wx, 1.0 - (xx + yy)]
 
 
-def matrix_to_quat(R, dtype=None):
-    # Shepperd (1978): the largest of 4w^2, 4x^2, 4y^2, 4z^2 (the first of equals, as argmax) picks
-    # the row of 4 q q^T to normalise (torchquat.matrix's table, written out); then the canonical sign
+def _shepperd_row(R):
+    """Shepperd (1978): the largest of 4w^2, 4x^2, 4y^2, 4z^2 (the first of equals, as argmax) picks
+    the row of 4 q q^T to normalise (torchquat.matrix's table, written out). Returns its index, the
+    row and the factor ``sign / |row|`` that makes it the canonical unit quaternion."""
     r00, r01, r02, r10, r11, r12, r20, r21, r22 = R
     t0, t1, t2, t3 = 1.0 + (r00 + r11 + r22), 1.0 + (r00 - r11 - r22), 1.0 + (r11 - r00 - r22), 1.0 + (r22 - r00 - r11)
     if t0 >= t1 and t0 >= t2 and t0 >= t3:
-        row = (t0, r21 - r12, r02 - r20, r10 - r01)
+        best, row = 0, (t0, r21 - r12, r02 - r20, r10 - r01)
     elif t1 >= t2 and t1 >= t3:
-        row = (r21 - r12, t1, r10 + r01, r02 + r20)
+        best, row = 1, (r21 - r12, t1, r10 + r01, r02 + r20)
     elif t2 >= t3:
-        row = (r02 - r20, r10 + r01, t2, r21 + r12)
+        best, row = 2, (r02 - r20, r10 + r01, t2, r21 + r12)
     else:
-        row = (r10 - r01, r02 + r20, r21 + r12, t3)
+        best, row = 3, (r10 - r01, r02 + r20, r21 + r12, t3)
     a, b, c, d = row
-    scale = _sign_of_first_nonzero(row) / _sqrt(a * a + b * b + c * c + d * d)
-    return [a * scale, b * scale, c * scale, d * scale]
+    return best, row, _sign_of_first_nonzero(row) / _sqrt(a * a + b * b + c * c + d * d)
+
+
+def matrix_to_quat(R, dtype=None):
+    _, row, scale = _shepperd_row(R)
+    return [c * scale for c in row]
 
 
 def hamilton_product(p, q, dtype=None):
@@ -205,17 +210,21 @@ def _quat_layout(q, conv: EulerConvention):
              -2.0 * tb * c * d + 0.0, dd - cc, z_sign * ((aa + bb) - (cc + dd)) * scale + 0.0), (a, b, c, d), scale)
 
 
+def _layout_choices(y0, x0, z, conv: EulerConvention, eps: float):
+    """``2h`` (the middle angle's sine), the lock test, which double angle is taken (middle near 0) and
+    t3's flip: the choices of the values and of the gradient."""
+    two_h = _hypot(y0, x0)
+    near_zero = z >= 0.0 if conv.symmetric else z <= 0.0
+    return two_h, two_h <= _sin(eps), near_zero, _EULER[conv.name][3][0 if near_zero else 1]
+
+
 def _layout_angles(y0, x0, y1, x1, y2, x2, z, conv: EulerConvention, eps: float):
     """The angles from the layout's pairs (the double angles' up to scale), as the small kernels'
     values path (``torchquat._euler_small._angles``)."""
-    flips = _EULER[conv.name][3]
-    two_h = _hypot(y0, x0)  # the middle angle's sine
-    locked = two_h <= _sin(eps)
-    near_zero = z >= 0.0 if conv.symmetric else z <= 0.0
+    two_h, locked, near_zero, flip = _layout_choices(y0, x0, z, conv, eps)
     t1 = 0.0 if locked else _atan2(y0, x0)
     double = _atan2(y1, x1) if near_zero else _atan2(y2, x2)  # (scale-free)
     middle = _atan2(two_h, z) if conv.symmetric else _atan2(z, two_h)
-    flip = flips[0 if near_zero else 1]
     shifted = double - t1 * flip
     if locked and not conv.intrinsic:  # SciPy's rule: the rotation in the first angle
         shifted = shifted * flip

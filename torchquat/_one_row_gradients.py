@@ -9,9 +9,9 @@ branch discards).
 
 from ._one_row import Fallback
 from ._one_row_formulas import (_EULER, _EULER_SIGNS, _MATRIX_LAYOUT, _atan2, _copysign, _cos, _cross, _hypot,
-                                _layout_angles, _matrix_distance_parts, _matrix_layout, _quat_distance_parts,
-                                _quat_layout, _sign_of_first_nonzero, _sin, _slerp_parts, _sqrt, hamilton_product,
-                                matrix_to_quat, quat_to_matrix, rot6d_to_matrix, rotate)
+                                _layout_angles, _layout_choices, _matrix_distance_parts, _matrix_layout,
+                                _quat_distance_parts, _quat_layout, _shepperd_row, _sin, _slerp_parts,
+                                hamilton_product, quat_to_matrix, rot6d_to_matrix, rotate)
 from .conventions import EulerConvention
 
 def _quat_to_matrix_pullback(q, R):
@@ -40,13 +40,8 @@ def quat_to_matrix_vjp(q, dtype=None):
 def _matrix_to_quat_with_pullback(R):
     """Shepperd's quaternion and ``g`` (4) -> its gradient on R: ``q = row / |row|`` (signed), so
     ``d q = (d row - q <q, d row>) / |row|``, and the chosen row is linear in R."""
-    q = matrix_to_quat(R)
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = R
-    t0, t1, t2, t3 = 1.0 + (r00 + r11 + r22), 1.0 + (r00 - r11 - r22), 1.0 + (r11 - r00 - r22), 1.0 + (r22 - r00 - r11)
-    best = 0 if t0 >= t1 and t0 >= t2 and t0 >= t3 else 1 if t1 >= t2 and t1 >= t3 else 2 if t2 >= t3 else 3
-    a, b, c, d = (t0, r21 - r12, r02 - r20, r10 - r01) if best == 0 else (r21 - r12, t1, r10 + r01, r02 + r20) if best == 1 \
-        else (r02 - r20, r10 + r01, t2, r21 + r12) if best == 2 else (r10 - r01, r02 + r20, r21 + r12, t3)
-    scale = _sign_of_first_nonzero((a, b, c, d)) / _sqrt(a * a + b * b + c * c + d * d)
+    best, row, scale = _shepperd_row(R)
+    q = [c * scale for c in row]
 
     def pullback(g):
         along = sum(x * y for x, y in zip(q, g))
@@ -230,10 +225,7 @@ def _layout_angles_vjp(y0, x0, y1, x1, y2, x2, z, conv: EulerConvention, eps: fl
     (``torchquat._euler_small._forms_gradient``): ``d atan2(y, x) = (x dy - y dx) / (x^2 + y^2)``
     for t1 (0 at lock), the chosen double angle and the middle, with ``d 2h`` 0 at ``2h = 0``."""
     angles = _layout_angles(y0, x0, y1, x1, y2, x2, z, conv, eps)
-    two_h = _hypot(y0, x0)
-    locked = two_h <= _sin(eps)
-    near_zero = z >= 0.0 if conv.symmetric else z <= 0.0
-    flip = _EULER[conv.name][3][0 if near_zero else 1]
+    two_h, locked, near_zero, flip = _layout_choices(y0, x0, z, conv, eps)
     pair = (y1, x1) if near_zero else (y2, x2)
     pair_square = pair[0] * pair[0] + pair[1] * pair[1]
     middle_square = z * z + two_h * two_h
