@@ -185,6 +185,88 @@ def test_slerp_one_row(monkeypatch):
     assert torch.equal(tq.quat_slerp(q0, q1, t), tq.quat_slerp(q0.double(), q1.double(), t.double()).float())
 
 
+_Q = (0.9, -0.1, 0.3, 0.2)
+_V = (0.3, -1.2, 0.5)
+_R = tuple(tq.quat_to_matrix(torch.tensor(_Q)).flatten().tolist())
+# each public function with a one-row path, before validation (kernel.at_one_row), and one valid
+# row of each argument: (entries, row shape)
+PUBLIC = {
+    "quat_to_matrix": (tq.quat_to_matrix, [(_Q, (4,))]),
+    "matrix_to_quat": (tq.matrix_to_quat, [(_R, (3, 3))]),
+    "quat_multiply": (tq.quat_multiply, [(_Q, (4,)), (_Q[::-1], (4,))]),
+    "quat_rotate": (tq.quat_rotate, [(_Q, (4,)), (_V, (3,))]),
+    "axis_angle_to_quat": (tq.axis_angle_to_quat, [(_V, (3,))]),
+    "quat_to_axis_angle": (tq.quat_to_axis_angle, [(_Q, (4,))]),
+    "axis_angle_to_matrix": (tq.axis_angle_to_matrix, [(_V, (3,))]),
+    "matrix_to_axis_angle": (tq.matrix_to_axis_angle, [(_R, (3, 3))]),
+    "rot6d_to_matrix": (tq.rot6d_to_matrix, [(_R[:6], (6,))]),
+    "quat_geodesic_distance": (tq.quat_geodesic_distance, [(_Q, (4,)), (_Q[::-1], (4,))]),
+    "matrix_geodesic_distance": (tq.matrix_geodesic_distance, [(_R, (3, 3)), (_R[::-1], (3, 3))]),
+    "euler_to_quat": (lambda a: tq.euler_to_quat(a, "ZYX"), [(_V, (3,))]),
+    "euler_to_matrix": (lambda a: tq.euler_to_matrix(a, "zxz"), [(_V, (3,))]),
+    "quat_to_euler": (lambda q: tq.quat_to_euler(q, "XYZ"), [(_Q, (4,))]),
+    "matrix_to_euler": (lambda R: tq.matrix_to_euler(R, "yzy"), [(_R, (3, 3))]),
+}
+# shapes of a row's entries that validation refuses
+WRONG_SHAPES = {(4,): [(2, 2), (4, 1)], (3,): [(3, 1), (1, 3, 1)], (6,): [(2, 3), (3, 2)],
+                (3, 3): [(9,), (1, 9), (3, 1, 3), (9, 1)]}
+
+
+def _error(fn, *args):
+    try:
+        fn(*args)
+    except Exception as error:  # (the test compares the errors: type and text)
+        return type(error), str(error)
+    return None
+
+
+@pytest.mark.parametrize("name", sorted(PUBLIC))
+def test_public_one_row_path_validates_as_the_tensor_path(name, monkeypatch):
+    fn, rows = PUBLIC[name]
+    valid = [torch.tensor(values).reshape(shape) for values, shape in rows]
+    with DispatchRecorder() as recorder:
+        expected = fn(*valid)
+    assert recorder.names == ["lift_fresh"]  # the one-row path, from the public function
+    for k, (values, shape) in enumerate(rows):  # each argument in a shape of the same size, refused
+        for wrong in WRONG_SHAPES[shape]:
+            args = valid[:k] + [torch.tensor(values).reshape(wrong)] + valid[k + 1:]
+            error = _error(fn, *args)
+            assert error is not None and error[0] is tq.ShapeError, (name, wrong)
+            assert error == _tensor_kernels(monkeypatch, _error, fn, *args)
+        integers = valid[:k] + [valid[k].round().to(torch.int64)] + valid[k + 1:]  # (other types: TypeError)
+        error = _error(fn, *integers)
+        assert error is not None and error == _tensor_kernels(monkeypatch, _error, fn, *integers)
+    # lists are read as tensors; float16 and mixed dtypes are computed as the tensor path computes them
+    assert torch.equal(fn(*[x.tolist() for x in valid]), expected)
+    for args in ([x.half() for x in valid], [x.double() if k else x for k, x in enumerate(valid)]):
+        got, ref = fn(*args), _tensor_kernels(monkeypatch, fn, *args)
+        assert got.dtype == ref.dtype and torch.allclose(got.double(), ref.double(), atol=2e-3 if got.dtype == torch.half else 1e-6)
+
+
+def test_a_parameter_takes_the_one_row_path(monkeypatch):
+    q = torch.nn.Parameter(torch.tensor(_Q, dtype=torch.float64))
+    with torch.no_grad(), DispatchRecorder() as recorder:
+        tq.quat_to_matrix(q)
+    assert recorder.names == ["lift_fresh"]
+    R = tq.quat_to_matrix(q)
+    assert type(R.grad_fn).__name__ == "_OneRowGradientBackward"
+    (grad,) = torch.autograd.grad(R[0, 1], q)
+    R_ref = _tensor_kernels(monkeypatch, tq.quat_to_matrix, q)
+    (ref,) = torch.autograd.grad(R_ref[0, 1], q)
+    assert torch.allclose(R, R_ref, atol=1e-15) and torch.allclose(grad, ref, atol=1e-14)
+
+
+def test_euler_options_at_one_row(monkeypatch):
+    # degrees and an explicit eps take the validated path (degrees converted with tensor operations)
+    q = torch.tensor(_Q, dtype=torch.float64)
+    for kwargs in ({"degrees": True}, {"eps": 1e-3}, {"degrees": False, "eps": None}):
+        for fn, x in ((lambda q: tq.quat_to_euler(q, "ZYX", **kwargs), q),
+                      (lambda R: tq.matrix_to_euler(R, "zxz", **kwargs), tq.quat_to_matrix(q))):
+            assert torch.allclose(fn(x), _tensor_kernels(monkeypatch, fn, x), atol=1e-12)
+    with pytest.raises(ValueError, match="degrees"):
+        tq.euler_to_quat(torch.tensor(_V), "ZYX", degrees="no")
+
+
 def test_tracing_and_transforms_take_the_tensor_kernels():
     q = torch.tensor([0.9, -0.1, 0.3, 0.2], dtype=torch.float64)
     traced = torch.jit.trace(tq.quat_to_matrix, q)  # a trace, not a constant

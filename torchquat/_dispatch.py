@@ -290,7 +290,9 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
 
     ``one_row`` (a :class:`torchquat._one_row.OneRow`): the kernel's formulas in Python floats, which
     a call on one CPU row takes, with one autograd node of its own where a graph is recorded (see
-    ``torchquat._one_row``).
+    ``torchquat._one_row``). The kernel then also has ``at_one_row(*tensors, **static)``, the same
+    for a public function's unvalidated arguments, or ``None``: validation's 3-5 us are most of a
+    one-row call's time.
     """
     if fn is None:
         return functools.partial(kernel, blocked_row_dims=blocked_row_dims, compiled_from_rows=compiled_from_rows,
@@ -346,4 +348,13 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
         return fn(*tensors, **static)
 
     dispatch.eager = fn
+    if one_row is not None:
+        def at_one_row(*tensors, **static) -> Optional[Tensor]:
+            # A public function's first step: its arguments as given, before validation, since
+            # run() accepts only what validation would pass unchanged (plain CPU float32/float64
+            # tensors of one row each, of the row's shape, of one dtype); None for anything else
+            # (then the public function validates, with its errors, and calls the kernel).
+            return _one_row.run(one_row, fn, tensors, static)
+
+        dispatch.at_one_row = at_one_row
     return dispatch

@@ -13,11 +13,18 @@ recorded, one autograd node (:class:`_OneRowGradient`) holds the formulas' vecto
 product, also in Python floats; a graph of the gradient (double backward) differentiates the tensor
 kernel instead, so higher derivatives are the tensor kernels' own.
 
+A public function offers its arguments as given (``kernel.at_one_row``) before it validates them:
+validation's attribute reads (3-5 us) were a quarter to a third of a one-row call. :func:`run`
+accepts only what validation passes unchanged (plain tensors or parameters, CPU, one float32 or
+float64 dtype, each one row of the row's own shape); anything else, a list or a ``(2, 2)``
+"quaternion" say, returns ``None``, and the public function validates, with its errors, and calls
+the kernel as before.
+
 Anything unusual goes back to the tensor kernel (:func:`run` returns ``None``): a non-finite
 input, an exception from ``math`` (a zero quaternion's division, say), a row a formula leaves to it
-(:class:`Fallback`: collinear 6D columns with a gradient), a tensor subclass. The formulas are the
-kernels' own, with their choices (``torchquat._one_row_formulas``; their gradients in
-``torchquat._one_row_gradients``).
+(:class:`Fallback`: collinear 6D columns with a gradient), a tensor subclass other than
+``nn.Parameter``. The formulas are the kernels' own, with their choices
+(``torchquat._one_row_formulas``; their gradients in ``torchquat._one_row_gradients``).
 """
 
 import math
@@ -43,6 +50,8 @@ class Fallback(Exception):
     """Raised by a formula for a row it leaves to the tensor kernel."""
 
 
+# tensors whose methods are torch's own (a learnable rotation is often an nn.Parameter)
+_PLAIN = frozenset((Tensor, torch.nn.Parameter))
 _FAILURES = (ZeroDivisionError, ValueError, OverflowError, Fallback)
 
 
@@ -71,25 +80,33 @@ def _formula(name: str) -> Optional[Callable]:
     return fn
 
 
-def _row_dims(t: Tensor, size: int) -> int:
-    """How many of ``t``'s trailing dims are its row: 2 for a ``(..., 3, 3)`` matrix, 0 for a number
-    per row (slerp's ``t``), else 1."""
-    return 0 if size == 1 else 2 if size == 9 and t.shape[-1] == 3 else 1
-
-
-def _flat(t: Tensor, row_dims: int) -> list:
-    """The one row of ``t`` (a ``(1, ..., 1, row)`` tensor of ``row_dims`` row dims; a matrix
-    row-major) as a list of floats."""
+def _flat(t: Tensor, size: int):
+    """The one row of ``t`` as a list of floats, and ``t``'s number of batch dims; ``None`` unless
+    ``t``, of ``size`` entries, is a ``(1, ..., 1, size)`` row, a ``(1, ..., 1, 3, 3)`` matrix for
+    ``size`` 9 (read row-major), or for ``size`` 1 any shape (one number per row: slerp's ``t``)."""
+    if size == 1:
+        batch_dims = t.dim()
+    else:
+        shape = t.shape  # (a public function's input is not yet validated: a (2, 2) "quaternion")
+        if not shape or shape[-1] != (3 if size == 9 else size) or size == 9 and (len(shape) < 2 or shape[-2] != 3):
+            return None
+        batch_dims = len(shape) - (2 if size == 9 else 1)
     values = t.tolist()
-    for _ in range(t.dim() - row_dims):  # the batch dims, all of size 1
+    for _ in range(batch_dims):
         values = values[0]
-    return values[0] + values[1] + values[2] if row_dims == 2 else [values] if row_dims == 0 else values
+    return ([values] if size == 1 else values[0] + values[1] + values[2] if size == 9 else values), batch_dims
 
 
-def _tensor(values, dtype: torch.dtype, shape) -> Tensor:
+def _tensor(values, numpy_dtype, shape: tuple) -> Tensor:
     # (torch.from_numpy: 1.1-1.9 us, where torch.tensor(values, dtype=...) takes 4.5 us and a copy
     # into torch's own memory 2 us more; like every from_numpy tensor, its storage is not resizable)
-    return torch.from_numpy(numpy.array(values, dtype=_NUMPY_DTYPES[dtype]).reshape(shape))
+    return torch.from_numpy(numpy.array(values, dtype=numpy_dtype).reshape(shape))
+
+
+# torch.autograd.Function.apply less its Python wrapper, which serves torch.func transforms (never
+# active here: run() has checked) and setup_context (not used): 13k fewer of a recorded one-row
+# call's 114k instructions (callgrind, quat_geodesic_distance); bound at the first recorded call
+_apply_node = None
 
 
 def run(one_row: OneRow, kernel: Callable, tensors: Sequence[Tensor], static) -> Optional[Tensor]:
@@ -100,58 +117,76 @@ def run(one_row: OneRow, kernel: Callable, tensors: Sequence[Tensor], static) ->
     # tensor's numel() is a sample's; forward-mode AD would not see through the floats)
     if not ENABLED or _is_compiling() or _transformed() or _tracing() is not None:
         return None
-    dtype = tensors[0].dtype
-    if dtype not in _NUMPY_DTYPES:
+    dtype = getattr(tensors[0], "dtype", None)  # (a public function's argument may be a list)
+    numpy_dtype = _NUMPY_DTYPES.get(dtype)
+    if numpy_dtype is None:
         return None
     rows, batch_dims, records, total = [], 0, False, 0.0
     for t, size in zip(tensors, one_row.row_sizes):
-        # (then the cheapest tests: a batch of many rows pays one numel() and returns)
-        if t.numel() != size or type(t) is not Tensor or not t.is_cpu or t.dtype is not dtype:
+        # (then the cheapest tests: a batch of many rows pays a type test and one numel(), and returns)
+        if type(t) not in _PLAIN or t.numel() != size or not t.is_cpu or t.dtype is not dtype:
             return None
+        row = _flat(t, size)
+        if row is None:
+            return None
+        values, dims = row
         records = records or t.requires_grad
-        row_dims = _row_dims(t, size)
-        values = _flat(t, row_dims)
         total += sum(values)
         rows.append(values)
-        batch_dims = max(batch_dims, t.dim() - row_dims)
+        batch_dims = max(batch_dims, dims)
     if not _isfinite(total):  # (a sum is finite only if every term is: NaN and inf take the tensor kernel's way)
         return None
     shape = (1,) * batch_dims + one_row.out_shape
     try:
         if not (records and _grad_enabled()):
-            return _tensor(_formula(one_row.name)(*rows, dtype=dtype, **static), dtype, shape)
+            return _tensor(_formula(one_row.name)(*rows, dtype=dtype, **static), numpy_dtype, shape)
         with_gradient = _formula(one_row.name + "_vjp")
         if with_gradient is None:
             return None
         out, vjp = with_gradient(*rows, dtype=dtype, **static)
     except _FAILURES:
         return None
-    return _OneRowGradient.apply(numpy.array(out, dtype=_NUMPY_DTYPES[dtype]).reshape(shape), vjp, kernel, static, *tensors)
+    # what the backward needs, read now: the first-order backward then unpacks no saved tensor
+    out = numpy.array(out, dtype=numpy_dtype).reshape(shape)
+    plan = (out, vjp, kernel, static, numpy_dtype, out.size,
+            # (as tuples: NumPy reads a torch.Size as a sequence, 7x the time of a reshape)
+            tuple(tuple(t.shape) for t in tensors))
+    global _apply_node
+    if _apply_node is None:
+        _apply_node = _bind_apply()
+    return _apply_node(plan, *tensors)
+
+
+def _bind_apply() -> Callable:
+    apply = getattr(torch._C, "_FunctionBase", object).__dict__.get("apply")
+    return _OneRowGradient.apply if apply is None else apply.__get__(None, _OneRowGradient)
 
 
 class _OneRowGradient(torch.autograd.Function):
     """The node of a one-row call: its backward is the formulas' vector-Jacobian product."""
 
     @staticmethod
-    def forward(ctx, out: numpy.ndarray, vjp: Callable, kernel: Callable, static: dict, *inputs: Tensor):
-        ctx.vjp, ctx.kernel, ctx.static = vjp, kernel, static
+    def forward(ctx, plan: tuple, *inputs: Tensor):
+        ctx.plan = plan
         ctx.save_for_backward(*inputs)
-        return torch.from_numpy(out)
+        return torch.from_numpy(plan[0])
 
     @staticmethod
     def backward(ctx, grad: Tensor):
-        inputs = ctx.saved_tensors
-        wanted = ctx.needs_input_grad[4:]
+        _, vjp, kernel, static, numpy_dtype, out_size, shapes = ctx.plan
+        wanted = ctx.needs_input_grad[1:]
         create_graph = _grad_enabled()
         if create_graph or _legacy_batched(grad) or type(grad) is not Tensor:
             # A graph of the gradient (double backward), or autograd's batched gradients: the
             # tensor kernel's own derivative, of views of the inputs (as _closed_form does)
             with torch.enable_grad():
-                views = [x.view_as(x) for x in inputs]
-                output = ctx.kernel(*views, **ctx.static)
+                views = [x.view_as(x) for x in ctx.saved_tensors]
+                output = kernel(*views, **static)
                 targets = [x for x, w in zip(views, wanted) if w]
                 found = iter(torch.autograd.grad(output, targets, grad, create_graph=create_graph, allow_unused=True))
-            return (None, None, None, None, *(next(found) if w else None for w in wanted))
-        grads = ctx.vjp(_flat(grad, _row_dims(grad, grad.numel())))
-        return (None, None, None, None, *(_tensor(g, x.dtype, x.shape) if w else None
-                                          for g, x, w in zip(grads, inputs, wanted)))
+            return (None, *(next(found) if w else None for w in wanted))
+        grads = vjp(_flat(grad, out_size)[0])
+        result = [None]
+        for g, shape, w in zip(grads, shapes, wanted):
+            result.append(torch.from_numpy(numpy.array(g, dtype=numpy_dtype).reshape(shape)) if w else None)
+        return tuple(result)

@@ -120,6 +120,8 @@ def axis_angle_to_quat(v: Tensor) -> Tensor:
         >>> axis_angle_to_quat(torch.tensor([0., 0., torch.pi / 2]))
         tensor([0.7071, 0.0000, 0.0000, 0.7071])
     """
+    if (out := axis_angle_to_quat_unchecked.at_one_row(v)) is not None:
+        return out
     v, dtype = prepare(v, "axis_angle_to_quat", "v", (3,))
     return restore(axis_angle_to_quat_unchecked(v), dtype)
 
@@ -318,6 +320,8 @@ def quat_to_axis_angle(q: Tensor) -> Tensor:
         >>> quat_to_axis_angle(torch.tensor([-0.5, -0.5, -0.5, -0.5]))  # = 120 deg about (1, 1, 1)
         tensor([1.2092, 1.2092, 1.2092])
     """
+    if (out := quat_to_axis_angle_unchecked.at_one_row(q)) is not None:
+        return out
     q, dtype = prepare(q, "quat_to_axis_angle", "q", (4,))
     return restore(quat_to_axis_angle_unchecked(q), dtype)
 
@@ -380,6 +384,8 @@ def axis_angle_to_matrix(v: Tensor) -> Tensor:
                 [ 1.,  0.,  0.],
                 [ 0.,  0.,  1.]])
     """
+    if (out := axis_angle_to_matrix_unchecked.at_one_row(v)) is not None:
+        return out
     v, dtype = prepare(v, "axis_angle_to_matrix", "v", (3,))
     return restore(axis_angle_to_matrix_unchecked(v), dtype)
 
@@ -397,5 +403,7 @@ def matrix_to_axis_angle(R: Tensor) -> Tensor:
         >>> matrix_to_axis_angle(torch.eye(3))
         tensor([0., 0., 0.])
     """
+    if (out := matrix_to_axis_angle_unchecked.at_one_row(R)) is not None:
+        return out
     R, dtype = prepare(R, "matrix_to_axis_angle", "R", (3, 3))
     return restore(matrix_to_axis_angle_unchecked(R), dtype)

@@ -182,6 +182,8 @@ def quat_geodesic_distance(q1: Tensor, q2: Tensor) -> Tensor:
         >>> quat_geodesic_distance(torch.tensor([1., 0., 0., 0.]), torch.tensor([0., 0., 0., -1.]))
         tensor(3.1416)
     """
+    if (out := quat_geodesic_distance_unchecked.at_one_row(q1, q2)) is not None:
+        return out
     q1, q2, dtype = prepare_pair("quat_geodesic_distance", ("q1", "q2"), q1, q2, (4,), (4,))
     return restore(quat_geodesic_distance_unchecked(q1, q2), dtype)
 
@@ -300,5 +302,7 @@ def matrix_geodesic_distance(R1: Tensor, R2: Tensor) -> Tensor:
         >>> matrix_geodesic_distance(torch.eye(3), Rz)
         tensor(1.5708)
     """
+    if (out := matrix_geodesic_distance_unchecked.at_one_row(R1, R2)) is not None:
+        return out
     R1, R2, dtype = prepare_pair("matrix_geodesic_distance", ("R1", "R2"), R1, R2, (3, 3), (3, 3))
     return restore(matrix_geodesic_distance_unchecked(R1, R2), dtype)

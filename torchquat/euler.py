@@ -31,7 +31,7 @@ from ._euler_rotations import (EULER_TO_MATRIX, EULER_TO_QUAT, EULER_TO_QUAT_COL
 from ._math import combine, constant, is_small, literal
 from ._planes import columns, planar
 from ._validation import prepare, restore, tensor_or_as_is
-from .conventions import EulerConvention, check_degrees, gimbal_threshold, parse_convention
+from .conventions import EulerConvention, check_degrees, gimbal_eps, gimbal_threshold, parse_convention
 from .errors import ShapeError
 from .matrix import quat_to_matrix_unchecked
 
@@ -83,6 +83,8 @@ def euler_to_quat(angles: Tensor, convention: str, degrees: bool = False) -> Ten
         tensor([0.7071, 0.7071, 0.0000, 0.0000])
     """
     conv = parse_convention(convention, "euler_to_quat")
+    if degrees is False and (out := euler_to_quat_unchecked.at_one_row(angles, convention=conv)) is not None:
+        return out
     angles, dtype = prepare(angles, "euler_to_quat", "angles", (3,))
     return restore(euler_to_quat_unchecked(to_radians(angles, check_degrees("euler_to_quat", degrees)), convention=conv), dtype)
 
@@ -121,6 +123,8 @@ def euler_to_matrix(angles: Tensor, convention: str, degrees: bool = False) -> T
                 [ 0.,  0.,  1.]])
     """
     conv = parse_convention(convention, "euler_to_matrix")
+    if degrees is False and (out := euler_to_matrix_unchecked.at_one_row(angles, convention=conv)) is not None:
+        return out
     angles, dtype = prepare(angles, "euler_to_matrix", "angles", (3,))
     return restore(euler_to_matrix_unchecked(to_radians(angles, check_degrees("euler_to_matrix", degrees)), convention=conv), dtype)
 
@@ -209,6 +213,9 @@ def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Option
         tensor([30.0000, 20.0000, 10.0000])
     """
     conv = parse_convention(convention, "quat_to_euler")
+    if (degrees is False and eps is None and (out := quat_to_euler_unchecked.at_one_row(
+            q, convention=conv, eps=gimbal_eps(getattr(q, "dtype", None)))) is not None):
+        return out
     q, dtype = prepare(q, "quat_to_euler", "q", (4,))
     angles = quat_to_euler_unchecked(q, convention=conv, eps=gimbal_threshold("quat_to_euler", eps, q.dtype))
     return restore(to_degrees(angles, check_degrees("quat_to_euler", degrees)), dtype)
@@ -248,6 +255,9 @@ def matrix_to_euler(R: Tensor, convention: str, degrees: bool = False, eps: Opti
         tensor([0., 0., 0.])
     """
     conv = parse_convention(convention, "matrix_to_euler")
+    if (degrees is False and eps is None and (out := matrix_to_euler_unchecked.at_one_row(
+            R, convention=conv, eps=gimbal_eps(getattr(R, "dtype", None)))) is not None):
+        return out
     R, dtype = prepare(R, "matrix_to_euler", "R", (3, 3))
     angles = matrix_to_euler_unchecked(R, convention=conv, eps=gimbal_threshold("matrix_to_euler", eps, R.dtype))
     return restore(to_degrees(angles, check_degrees("matrix_to_euler", degrees)), dtype)

@@ -128,6 +128,8 @@ def quat_to_matrix(q: Tensor) -> Tensor:
                 [ 0., -1.,  0.],
                 [ 0.,  0.,  1.]])
     """
+    if (out := quat_to_matrix_unchecked.at_one_row(q)) is not None:
+        return out
     q, dtype = prepare(q, "quat_to_matrix", "q", (4,))
     return restore(quat_to_matrix_unchecked(q), dtype)
 
@@ -251,5 +253,7 @@ def matrix_to_quat(R: Tensor) -> Tensor:
         >>> matrix_to_quat(torch.eye(3))
         tensor([1., 0., 0., 0.])
     """
+    if (out := matrix_to_quat_unchecked.at_one_row(R)) is not None:
+        return out
     R, dtype = prepare(R, "matrix_to_quat", "R", (3, 3))
     return restore(matrix_to_quat_unchecked(R), dtype)

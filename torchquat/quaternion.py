@@ -106,6 +106,8 @@ def quat_multiply(p: Tensor, q: Tensor) -> Tensor:
         >>> quat_multiply(i, j)  # ij = k
         tensor([0., 0., 0., 1.])
     """
+    if (out := hamilton_product.at_one_row(p, q)) is not None:
+        return out
     p, q, dtype = prepare_pair("quat_multiply", ("p", "q"), p, q, (4,), (4,))
     return restore(hamilton_product(p, q), dtype)
 
@@ -224,6 +226,8 @@ def quat_rotate(q: Tensor, v: Tensor) -> Tensor:
         >>> quat_rotate(q, torch.tensor([1., 0., 0.])).round(decimals=6) + 0.0  # + 0.0 turns -0. into 0.
         tensor([0., 1., 0.])
     """
+    if (out := rotate_unchecked.at_one_row(q, v)) is not None:
+        return out
     q, v, dtype = prepare_pair("quat_rotate", ("q", "v"), q, v, (4,), (3,))
     return restore(rotate_unchecked(q, v), dtype)
 

@@ -157,6 +157,8 @@ def rot6d_to_matrix(x: Tensor) -> Tensor:
                 [0., 1., 0.],
                 [0., 0., 1.]])
     """
+    if (out := rot6d_to_matrix_unchecked.at_one_row(x)) is not None:
+        return out
     x, dtype = prepare(x, "rot6d_to_matrix", "x", (6,))
     return restore(rot6d_to_matrix_unchecked(x), dtype)
 
