@@ -113,11 +113,17 @@ def run(one_row: OneRow, kernel: Callable, tensors: Sequence[Tensor], static) ->
     """``one_row``'s formula on ``tensors`` of one row each, as a tensor of their dtype and batch
     shape (with its gradient node where autograd records), or ``None`` where the tensor kernel must
     run instead (see the module docstring). ``kernel``: the tensor kernel, for double backward."""
-    # (first: under compile a size test would guard the graph on its batch size, and under vmap a
-    # tensor's numel() is a sample's; forward-mode AD would not see through the floats)
-    if not ENABLED or _is_compiling() or _transformed() or _tracing() is not None:
+    # (first: under compile a size test would guard the graph on its batch size; then the first
+    # input's size, which turns a batch away at a third of the checks' cost, since every public call
+    # of a batch pays this; then the transforms: under vmap a tensor's numel() is a sample's, and
+    # forward-mode AD would not see through the floats)
+    if not ENABLED or _is_compiling():
         return None
-    dtype = getattr(tensors[0], "dtype", None)  # (a public function's argument may be a list)
+    first = tensors[0]
+    if (type(first) not in _PLAIN or first.numel() != one_row.row_sizes[0]  # (a public argument: a list, say)
+            or _transformed() or _tracing() is not None):
+        return None
+    dtype = first.dtype
     numpy_dtype = _NUMPY_DTYPES.get(dtype)
     if numpy_dtype is None:
         return None
