@@ -192,7 +192,4 @@ class _OneRowGradient(torch.autograd.Function):
                 found = iter(torch.autograd.grad(output, targets, grad, create_graph=create_graph, allow_unused=True))
             return (None, *(next(found) if w else None for w in wanted))
         grads = vjp(_flat(grad, out_size)[0])
-        result = [None]
-        for g, shape, w in zip(grads, shapes, wanted):
-            result.append(torch.from_numpy(numpy.array(g, dtype=numpy_dtype).reshape(shape)) if w else None)
-        return tuple(result)
+        return (None, *[_tensor(g, numpy_dtype, shape) if w else None for g, shape, w in zip(grads, shapes, wanted)])
