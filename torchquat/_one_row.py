@@ -129,8 +129,9 @@ def run(one_row: OneRow, kernel: Callable, tensors: Sequence[Tensor], static) ->
         return None
     rows, batch_dims, records, total = [], 0, False, 0.0
     for t, size in zip(tensors, one_row.row_sizes):
-        # (then the cheapest tests: a batch of many rows pays a type test and one numel(), and returns)
-        if type(t) not in _PLAIN or t.numel() != size or not t.is_cpu or t.dtype is not dtype:
+        # (the first input's type, size and dtype are tested above; one rotation against a batch,
+        # rotate's vectors say, returns at the other's numel())
+        if t is not first and (type(t) not in _PLAIN or t.numel() != size or t.dtype is not dtype) or not t.is_cpu:
             return None
         row = _flat(t, size)
         if row is None:
