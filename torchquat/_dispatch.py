@@ -71,14 +71,17 @@ def _fresh_copy(fn: Callable, tag: int) -> Callable:
 
 # Inductor inlines a pointwise value into each of its readers unless it holds more operations than
 # this (default 50 on the CPU): the polynomial atan2's ~30 operations, read by several others in the
-# Euler kernels, made their compile 5-17x longer (m2e: 5 -> 65-89 s); with 20, 2x.
-_POLYNOMIAL_ATAN2_OPTIONS = {"realize_cpu_opcount_threshold": 20}
+# Euler kernels, made their compile 5-17x longer (m2e: 5 -> 65-89 s); with 20, 2x. The polynomial cos
+# and sin (~15 operations each, read by the products of Euler -> quat) took E -> q's compile from 3.3
+# to 23.5 s (uncached), 8.3 s with 20, 5.9 s with 10 (E -> R 5.7 -> 8.0 s), at the same speed.
+_POLYNOMIAL_OPTIONS = {"atan2": {"realize_cpu_opcount_threshold": 20}, "sincos": {"realize_cpu_opcount_threshold": 10}}
 
 
-def _compiled_for(fn: Callable, static: Tuple, context: Tuple = (), polynomial_atan2: bool = False) -> Callable:
+def _compiled_for(fn: Callable, static: Tuple, context: Tuple = (), polynomial: Optional[str] = None) -> Callable:
     """The compiled ``fn`` for its static options (sorted ``(name, value)`` pairs) and the call's
-    ``context`` (grad, inference mode, dtype): one compiled function for each. ``polynomial_atan2``:
-    a kernel whose float32 graphs without a gradient take ``_math.polynomial_atan2``."""
+    ``context`` (grad, inference mode, dtype, and for some kernels whether cos and sin are
+    polynomial): one compiled function for each. ``polynomial`` (``"atan2"`` or ``"sincos"``): a
+    kernel whose float32 graphs without a gradient take that polynomial of ``_math``."""
     key = (fn, static, context)
     compiled = _compiled.get(key)
     if compiled is None:
@@ -102,8 +105,8 @@ def _compiled_for(fn: Callable, static: Tuple, context: Tuple = (), polynomial_a
                 inductor_options["custom_partitioner_fn"] = NoSavedMasks()
             except ImportError:
                 pass
-            if polynomial_atan2 and not context[0] and context[2] == torch.float32:
-                inductor_options.update(_POLYNOMIAL_ATAN2_OPTIONS)
+            if polynomial and not context[0] and context[2] == torch.float32:
+                inductor_options.update(_POLYNOMIAL_OPTIONS[polynomial])
         compiled = _compiled[key] = torch.compile(_fresh_copy(bound, len(_compiled)), dynamic=True, fullgraph=True,
                                                      backend=_backend, options=inductor_options)
     return compiled
@@ -156,6 +159,18 @@ def _run_blocked(fn: Callable, tensors: Tuple[Tensor, ...], row_dims: Tuple[int,
             target.copy_(y.clone() if y.untyped_storage().data_ptr() == out.untyped_storage().data_ptr() else y)
         start += target.shape[0]
     return out.view(batch + out.shape[1:])
+
+
+def _within_sincos_range(t: Tensor, context: Tuple) -> bool:
+    """Whether a compiled call may take the polynomial cos and sin: float32 on the CPU, no gradient
+    recorded, every entry of ``t`` (angles, or a rotation vector's components) within
+    ``_math.POLYNOMIAL_SINCOS_RANGE`` of 0 (NaN and infinities are not). Reads one flag from the CPU,
+    where that waits on nothing."""
+    if context[0] or context[2] != torch.float32 or not t.is_cpu or t.numel() == 0:
+        return False
+    low, high = torch.aminmax(t)
+    bound = _math.POLYNOMIAL_SINCOS_RANGE
+    return bool((high <= bound) & (low >= -bound))
 
 
 # Multiplies every kernel's ``compiled_from_rows`` (tests set 0 to compile every batch size).
@@ -268,7 +283,7 @@ class _FirstOrder(torch.autograd.Function):
 
 
 def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[int, ...]] = None,
-           compiled_from_rows: int = 0, polynomial_atan2: bool = False,
+           compiled_from_rows: int = 0, polynomial_atan2: bool = False, polynomial_sincos: bool = False,
            one_row: Optional[_one_row.OneRow] = None) -> Callable:
     """Mark an unchecked kernel ``fn(*tensors, **static_options)`` as compilable.
 
@@ -288,6 +303,11 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
     ``atan2`` by ``_math.polynomial_atan2`` (compiled with the inductor option that keeps their
     compile time in bounds); nowhere else.
 
+    ``polynomial_sincos``: the same for ``_math.cos_sin_up_to_sign`` (``_math.polynomial_cos_sin``),
+    in calls whose first input's entries all lie within ``_math.POLYNOMIAL_SINCOS_RANGE`` (one
+    ``aminmax``, 0.3-0.6 ms per 1e6 rows of 3 where the polynomial saves 3-5); other calls take a
+    graph of their own with ``torch.cos`` and ``torch.sin``.
+
     ``one_row`` (a :class:`torchquat._one_row.OneRow`): the kernel's formulas in Python floats, which
     a call on one CPU row takes, with one autograd node of its own where a graph is recorded (see
     ``torchquat._one_row``). The kernel then also has ``at_one_row(*tensors, **static)``, the same
@@ -296,7 +316,8 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
     """
     if fn is None:
         return functools.partial(kernel, blocked_row_dims=blocked_row_dims, compiled_from_rows=compiled_from_rows,
-                                 polynomial_atan2=polynomial_atan2, one_row=one_row)
+                                 polynomial_atan2=polynomial_atan2, polynomial_sincos=polynomial_sincos,
+                                 one_row=one_row)
 
     @functools.wraps(fn)
     def dispatch(*tensors, **static):
@@ -318,10 +339,16 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
             # the call runs eagerly instead of failing (fullgraph=True makes the limit an error).
             context = (torch.is_grad_enabled() and any(t.requires_grad for t in tensors),
                        torch.is_inference_mode_enabled(), tensors[0].dtype)
-            compiled = _compiled_for(fn, tuple(sorted(static.items())), context, polynomial_atan2)
+            sincos = polynomial_sincos and _within_sincos_range(tensors[0], context)
+            if polynomial_sincos:  # (a graph for each answer: the trace reads it as a constant)
+                context += (sincos,)
+            compiled = _compiled_for(fn, tuple(sorted(static.items())), context,
+                                     "atan2" if polynomial_atan2 else "sincos" if sincos else None)
             if compiled not in _past_limit:
                 if polynomial_atan2:  # (read only if this call traces; other kernels leave it alone)
                     _math.KERNEL_CALL.polynomial_atan2 = True
+                if sincos:
+                    _math.KERNEL_CALL.polynomial_sincos = True
                 try:
                     if context[0]:
                         return _first_order_only(compiled(*tensors), tensors)
@@ -333,6 +360,8 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
                 finally:
                     if polynomial_atan2:
                         _math.KERNEL_CALL.polynomial_atan2 = False
+                    if sincos:
+                        _math.KERNEL_CALL.polynomial_sincos = False
             elif _set_stance is not None:  # its graphs still serve the layouts they were made for;
                 # a new one runs eagerly at once (no guard failure, recompile attempt and warning a call)
                 with _set_stance("eager_on_recompile"):

@@ -14,7 +14,7 @@ import torch
 from torch import Tensor
 
 from ._closed_form import Rule, jacobian_rule
-from ._math import HALF_IDENTITY, bilinear, bilinear_terms, constant, contract
+from ._math import HALF_IDENTITY, bilinear, bilinear_terms, constant, contract, cos_sin_up_to_sign
 from ._planes import columns, plane_buffer, rows, slot
 from .conventions import EULER_CONVENTIONS, EulerConvention
 from .quaternion import basis_product
@@ -172,7 +172,8 @@ def _euler_to_quat_columnwise_parts(angles: Tensor, convention: EulerConvention,
     closed-form backward needs (its columns, and the left factor's half-angle cosine and sine).
     ``values``: nothing keeps those (so the columns may be the output rows' own memory, which a
     caller may write in place; see ``_planes.plane_buffer``)."""
-    cs = [(torch.cos(h), torch.sin(h)) for h in columns(angles, HALF_IDENTITY[3], "half3")]
+    # (each pair up to a sign in the compiled float32 kernels: it flips q, and w >= 0 below undoes that)
+    cs = [cos_sin_up_to_sign(h) for h in columns(angles, HALF_IDENTITY[3], "half3")]
     pairs = [u * v for u in cs[0] for v in cs[1]]
     # the table's row 4 m1 + 2 m2 + m3 is pair 2 m1 + m2 times factor m3 of the third angle:
     # two terms per component (one product of three elementary quaternions)

@@ -12,8 +12,8 @@ from . import _closed_form as closed_form
 from ._closed_form import Rule, jacobian_rule
 from ._dispatch import kernel
 from ._one_row import OneRow
-from ._math import (HALF_IDENTITY, constant, contract, is_small, outer_product, small_angle_threshold,
-                    sum_of_products, sum_of_squares)
+from ._math import (HALF_IDENTITY, constant, contract, cos_sin_up_to_sign, is_small, outer_product,
+                    small_angle_threshold, sum_of_products, sum_of_squares)
 from ._planes import columns, plane_buffer, rows, slot
 from ._validation import prepare, restore
 from .matrix import HOMOGENEOUS, matrix_to_quat_unchecked, quat_to_matrix_unchecked
@@ -91,7 +91,8 @@ def _axis_angle_to_quat_with_jacobian(v: Tensor):
 _AXIS_ANGLE_TO_QUAT = jacobian_rule(_axis_angle_to_quat_small, _axis_angle_to_quat_with_jacobian, _axis_angle_to_quat_values)
 
 
-@kernel(blocked_row_dims=(1,), compiled_from_rows=1_024, one_row=OneRow("axis_angle_to_quat", (3,), (4,)))
+@kernel(blocked_row_dims=(1,), compiled_from_rows=1_024, polynomial_sincos=True,
+        one_row=OneRow("axis_angle_to_quat", (3,), (4,)))
 def axis_angle_to_quat_unchecked(v: Tensor) -> Tensor:
     # Up to 1,024 rows one closed-form node on the table path; above, its broadcast (..., 3, 4)
     # products cost more per row, and the columns with their own closed form are 1.4-1.9x faster
@@ -214,8 +215,10 @@ def _axis_angle_to_quat_columnwise_parts(v: Tensor, for_autograd: bool = False, 
     if for_autograd:
         small = x2 < small_angle_threshold(v.dtype) * 0.25  # (theta^2 = 4 x^2)
         x = torch.sqrt(torch.where(small, 1.0, x2))
-        cos_half = torch.where(small, 1.0 - 0.5 * x2, torch.cos(x))
-        sinc = torch.where(small, 1.0 - x2 / 6.0, torch.sin(x) / x)
+        # (cos x, sin x) up to a common sign in the compiled float32 kernels: sign below undoes it
+        cos_x, sin_x = cos_sin_up_to_sign(x)
+        cos_half = torch.where(small, 1.0 - 0.5 * x2, cos_x)
+        sinc = torch.where(small, 1.0 - x2 / 6.0, sin_x / x)
     else:  # (x at least the smallest normal: sin(x) / x is 1 there, and 0 / 0 at x = 0 is avoided)
         x = torch.sqrt(x2).clamp_min_(torch.finfo(v.dtype).tiny)
         cos_half = torch.cos(x)
@@ -351,7 +354,8 @@ _AXIS_ANGLE_TO_MATRIX = jacobian_rule(_axis_angle_to_matrix_small, _axis_angle_t
                                       lambda v: _rotation_form(_half_turn_quat(v)))  # (R is even in q)
 
 
-@kernel(blocked_row_dims=(1,), compiled_from_rows=512, one_row=OneRow("axis_angle_to_matrix", (3,), (3, 3)))
+@kernel(blocked_row_dims=(1,), compiled_from_rows=512, polynomial_sincos=True,
+        one_row=OneRow("axis_angle_to_matrix", (3,), (3, 3)))
 def axis_angle_to_matrix_unchecked(v: Tensor) -> Tensor:
     # Through the quaternion, where Rodrigues' formula written out is about 50 eager operations:
     # a few rows in one closed-form node (the quaternion's series and its quadratic form, with
