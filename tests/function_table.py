@@ -173,3 +173,17 @@ def fix_transposes(monkeypatch, setting: str) -> None:
 
     monkeypatch.setenv(planes.TRANSPOSES_VARIABLE, setting)
     monkeypatch.setattr(planes, "_BY_MATMUL", {})
+
+
+def traced_targets(fn, *inputs) -> list:
+    """The functions that dynamo's graph of ``fn`` on ``inputs`` calls (after a reset, so that it
+    traces afresh), in order."""
+    targets = []
+
+    def backend(gm, example_inputs):
+        targets.extend(node.target for node in gm.graph.nodes if node.op == "call_function")
+        return gm.forward
+
+    torch._dynamo.reset()
+    torch.compile(fn, backend=backend, fullgraph=True)(*inputs)
+    return targets

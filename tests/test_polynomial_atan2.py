@@ -1,4 +1,4 @@
-"""The float32 ``atan2`` of the compiled CPU kernels (``_math.polynomial_atan2``): its accuracy and
+"""The float32 ``atan2`` of the compiled CPU kernels (``_polynomials.polynomial_atan2``): its accuracy and
 special values, where it is used, and the compiled kernels that use it against eager."""
 
 import math
@@ -7,8 +7,8 @@ import pytest
 import torch
 
 import torchquat as tq
-from torchquat import _math
-from function_table import ALL
+from torchquat import _math, _polynomials
+from function_table import ALL, traced_targets
 
 F32 = torch.float32
 
@@ -30,7 +30,7 @@ def _sweep(n=1_000_000, seed=0):
 def test_the_polynomial_is_within_two_and_a_half_ulps_in_every_quadrant_and_octant():
     y, x = _sweep()
     exact = torch.atan2(y.double(), x.double())
-    error = _ulps(_math.polynomial_atan2(y, x), exact)
+    error = _ulps(_polynomials.polynomial_atan2(y, x), exact)
     for region in (x > 0, x < 0, y.abs() > x.abs(), y.abs() <= x.abs()):
         assert region.sum() > 100_000
         assert error[region].max() <= 2.5
@@ -44,13 +44,13 @@ def test_the_polynomial_is_accurate_relative_to_small_results():
     x = torch.ones(4000)
     y = torch.logspace(-30, 0, 4000)
     exact = torch.atan2(y.double(), x.double())
-    assert (_math.polynomial_atan2(y, x).double() / exact - 1).abs().max() < 2.5e-7
+    assert (_polynomials.polynomial_atan2(y, x).double() / exact - 1).abs().max() < 2.5e-7
 
 
 def test_the_polynomial_keeps_atan2s_special_values():
     values = torch.tensor([0.0, -0.0, 1.0, -1.0, math.inf, -math.inf, math.nan, 1e-40, -1e-40, 3e38, -3e38])
     y, x = torch.meshgrid(values, values, indexing="ij")
-    ours = _math.polynomial_atan2(y, x)
+    ours = _polynomials.polynomial_atan2(y, x)
     # correctly rounded reference: float64's atan2 rounded once
     expected = torch.atan2(y.double(), x.double()).to(F32)
     assert torch.equal(ours.isnan(), expected.isnan())
@@ -58,39 +58,31 @@ def test_the_polynomial_keeps_atan2s_special_values():
     assert torch.equal(ours[finite], expected[finite])
     assert torch.equal(torch.signbit(ours[finite]), torch.signbit(expected[finite]))  # -0.0 and -pi kept
     # half turns: atan2(+-0, negative) is +-pi exactly, as torch.atan2
-    assert _math.polynomial_atan2(torch.tensor([0.0, -0.0]), torch.tensor([-2.0, -2.0])).tolist() == [
+    assert _polynomials.polynomial_atan2(torch.tensor([0.0, -0.0]), torch.tensor([-2.0, -2.0])).tolist() == [
         torch.tensor(math.pi).item(), -torch.tensor(math.pi).item()]
 
 
 def _atan2_calls(fn, *inputs) -> int:
     """How many ``torch.atan2`` calls dynamo's graph of ``fn`` on ``inputs`` makes."""
-    targets = []
-
-    def backend(gm, example_inputs):
-        targets.extend(node.target for node in gm.graph.nodes if node.op == "call_function")
-        return gm.forward
-
-    torch._dynamo.reset()
-    torch.compile(fn, backend=backend, fullgraph=True)(*inputs)
-    return targets.count(torch.atan2)
+    return traced_targets(fn, *inputs).count(torch.atan2)
 
 
 def test_the_polynomial_is_taken_only_in_the_marked_kernels_float32_cpu_graphs_without_a_gradient():
     y, x = torch.randn(8), torch.randn(8)
     # a user's own compiled code: torch.atan2 (the polynomial would multiply its compile time)
-    assert _atan2_calls(_math.atan2, y, x) == 1
-    _math.KERNEL_CALL.polynomial_atan2 = True  # (as the dispatcher sets it around a marked kernel)
+    assert _atan2_calls(_polynomials.atan2, y, x) == 1
+    _polynomials.KERNEL_CALL.polynomial_atan2 = True  # (as the dispatcher sets it around a marked kernel)
     try:
-        assert _atan2_calls(_math.atan2, y, x) == 0
-        assert _atan2_calls(_math.atan2, y.double(), x.double()) == 1  # float64: torch's
+        assert _atan2_calls(_polynomials.atan2, y, x) == 0
+        assert _atan2_calls(_polynomials.atan2, y.double(), x.double()) == 1  # float64: torch's
         leaf = y.clone().requires_grad_()
-        assert _atan2_calls(_math.atan2, leaf, x) == 1  # a recorded gradient: torch's exact one
+        assert _atan2_calls(_polynomials.atan2, leaf, x) == 1  # a recorded gradient: torch's exact one
         with torch.no_grad():
-            assert _atan2_calls(_math.atan2, leaf, x) == 0
+            assert _atan2_calls(_polynomials.atan2, leaf, x) == 0
     finally:
-        _math.KERNEL_CALL.polynomial_atan2 = False
+        _polynomials.KERNEL_CALL.polynomial_atan2 = False
     # eager: torch.atan2 always, bit for bit
-    assert torch.equal(_math.atan2(y, x), torch.atan2(y, x))
+    assert torch.equal(_polynomials.atan2(y, x), torch.atan2(y, x))
 
 
 def test_the_euler_kernels_graphs_take_the_polynomial_and_a_users_compile_does_not(compiled, monkeypatch):

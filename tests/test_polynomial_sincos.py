@@ -1,6 +1,6 @@
 """The float32 cos and sin of the compiled CPU kernels that build rotations from half angles
-(``_math.polynomial_cos_sin``): its accuracy, its common sign and special values, where the
-dispatcher takes it (angles within ``_math.POLYNOMIAL_SINCOS_RANGE``), and those kernels against
+(``_polynomials.polynomial_cos_sin``): its accuracy, its common sign and special values, where the
+dispatcher takes it (angles within ``_polynomials.POLYNOMIAL_SINCOS_RANGE``), and those kernels against
 float64."""
 
 import math
@@ -9,8 +9,8 @@ import pytest
 import torch
 
 import torchquat as tq
-from torchquat import _math
-from function_table import ALL
+from torchquat import _polynomials
+from function_table import ALL, traced_targets
 
 F32, F64 = torch.float32, torch.float64
 
@@ -18,7 +18,7 @@ F32, F64 = torch.float32, torch.float64
 def _common_sign_errors(x: torch.Tensor):
     """The polynomial's ``(c, s)`` of float32 ``x``, the sign ``sigma`` with ``(c, s) ~ sigma (cos x,
     sin x)``, and the errors of ``sigma c`` and ``sigma s`` against float64's cos and sin of ``x``."""
-    c, s = _math.polynomial_cos_sin(x)
+    c, s = _polynomials.polynomial_cos_sin(x)
     cos, sin = torch.cos(x.double()), torch.sin(x.double())
     sigma = torch.sign(c.double() * cos + s.double() * sin)
     return c, s, sigma, (sigma * c.double() - cos).abs(), (sigma * s.double() - sin).abs()
@@ -26,7 +26,7 @@ def _common_sign_errors(x: torch.Tensor):
 
 def test_the_polynomial_is_cos_and_sin_up_to_one_sign_common_to_both_within_a_float32_ulp():
     g = torch.Generator().manual_seed(0)
-    bound = _math.POLYNOMIAL_SINCOS_RANGE
+    bound = _polynomials.POLYNOMIAL_SINCOS_RANGE
     # uniform over the range, near every multiple of pi/4 up to 40 (the reduction's and the
     # quadrant's edges), and within 4 where rotations' half angles lie
     quarter_turns = torch.arange(-160, 161, dtype=F64) * math.pi / 4
@@ -51,7 +51,7 @@ def test_the_polynomials_sine_is_accurate_relative_to_small_angles():
 
 def test_the_polynomial_keeps_sines_signed_zeros_and_gives_nan_where_torch_does():
     x = torch.tensor([0.0, -0.0, math.inf, -math.inf, math.nan])
-    c, s = _math.polynomial_cos_sin(x)
+    c, s = _polynomials.polynomial_cos_sin(x)
     assert c[:2].tolist() == [1.0, 1.0] and s[:2].tolist() == [0.0, 0.0]
     assert torch.signbit(s[:2]).tolist() == [False, True]  # sin(-0.0) = -0.0, as torch.sin
     assert torch.isnan(torch.sin(x[2:])).all() and torch.isnan(c[2:]).all() and torch.isnan(s[2:]).all()
@@ -59,32 +59,25 @@ def test_the_polynomial_keeps_sines_signed_zeros_and_gives_nan_where_torch_does(
 
 def _trig_calls(fn, *inputs) -> int:
     """How many ``torch.cos`` and ``torch.sin`` calls dynamo's graph of ``fn`` on ``inputs`` makes."""
-    targets = []
-
-    def backend(gm, example_inputs):
-        targets.extend(node.target for node in gm.graph.nodes if node.op == "call_function")
-        return gm.forward
-
-    torch._dynamo.reset()
-    torch.compile(fn, backend=backend, fullgraph=True)(*inputs)
+    targets = traced_targets(fn, *inputs)
     return targets.count(torch.cos) + targets.count(torch.sin)
 
 
 def test_the_polynomial_is_taken_only_in_marked_float32_cpu_graphs_without_a_gradient():
     x = torch.randn(8)
-    assert _trig_calls(_math.cos_sin_up_to_sign, x) == 2  # a user's own compiled code: torch's
-    _math.KERNEL_CALL.polynomial_sincos = True  # (as the dispatcher sets it for angles in range)
+    assert _trig_calls(_polynomials.cos_sin_up_to_sign, x) == 2  # a user's own compiled code: torch's
+    _polynomials.KERNEL_CALL.polynomial_sincos = True  # (as the dispatcher sets it for angles in range)
     try:
-        assert _trig_calls(_math.cos_sin_up_to_sign, x) == 0
-        assert _trig_calls(_math.cos_sin_up_to_sign, x.double()) == 2  # float64: torch's
+        assert _trig_calls(_polynomials.cos_sin_up_to_sign, x) == 0
+        assert _trig_calls(_polynomials.cos_sin_up_to_sign, x.double()) == 2  # float64: torch's
         leaf = x.clone().requires_grad_()
-        assert _trig_calls(_math.cos_sin_up_to_sign, leaf) == 2  # a recorded gradient: torch's exact one
+        assert _trig_calls(_polynomials.cos_sin_up_to_sign, leaf) == 2  # a recorded gradient: torch's exact one
         with torch.no_grad():
-            assert _trig_calls(_math.cos_sin_up_to_sign, leaf) == 0
+            assert _trig_calls(_polynomials.cos_sin_up_to_sign, leaf) == 0
     finally:
-        _math.KERNEL_CALL.polynomial_sincos = False
+        _polynomials.KERNEL_CALL.polynomial_sincos = False
     # eager: torch's, bit for bit
-    c, s = _math.cos_sin_up_to_sign(x)
+    c, s = _polynomials.cos_sin_up_to_sign(x)
     assert torch.equal(c, torch.cos(x)) and torch.equal(s, torch.sin(x))
 
 
@@ -102,7 +95,7 @@ def test_the_dispatcher_takes_the_polynomial_only_for_angles_within_its_range(co
     monkeypatch.setattr(dispatch, "_compiled", {})
     torch._dynamo.reset()
     angles = torch.rand(64, 3, generator=torch.Generator().manual_seed(0)) * 6 - 3
-    bound = _math.POLYNOMIAL_SINCOS_RANGE
+    bound = _polynomials.POLYNOMIAL_SINCOS_RANGE
 
     def trig_calls(call):
         before = len(graphs)
@@ -141,7 +134,7 @@ KERNELS = ["euler_to_quat[ZYX]", "euler_to_quat[zxz]", "euler_to_matrix[XYZ]", "
 @pytest.mark.parametrize("name", KERNELS)
 def test_compiled_float32_rotations_without_a_gradient_match_float64_in_and_beyond_the_range(name, compiled):
     fn, generic, singular = ALL[name]
-    bound = _math.POLYNOMIAL_SINCOS_RANGE
+    bound = _polynomials.POLYNOMIAL_SINCOS_RANGE
     beyond = _big_batch(64, 1.0, seed=4)
     # 2^20 rad on one axis (a norm float32 computes exactly): the three-part reduction is 0.03 off
     # at 1e6, so these batches must take torch's cos and sin

@@ -21,7 +21,7 @@ from typing import Callable, Dict, Optional, Tuple
 import torch
 from torch import Tensor
 
-from . import _closed_form, _math, _one_row, _planes
+from . import _closed_form, _math, _one_row, _planes, _polynomials
 
 __all__ = ["use_compiled_kernels", "compiled_kernels_enabled", "kernel"]
 
@@ -81,7 +81,7 @@ def _compiled_for(fn: Callable, static: Tuple, context: Tuple = (), polynomial: 
     """The compiled ``fn`` for its static options (sorted ``(name, value)`` pairs) and the call's
     ``context`` (grad, inference mode, dtype, and for some kernels whether cos and sin are
     polynomial): one compiled function for each. ``polynomial`` (``"atan2"`` or ``"sincos"``): a
-    kernel whose float32 graphs without a gradient take that polynomial of ``_math``."""
+    kernel whose float32 graphs without a gradient take that polynomial of ``_polynomials``."""
     key = (fn, static, context)
     compiled = _compiled.get(key)
     if compiled is None:
@@ -164,12 +164,12 @@ def _run_blocked(fn: Callable, tensors: Tuple[Tensor, ...], row_dims: Tuple[int,
 def _within_sincos_range(t: Tensor, context: Tuple) -> bool:
     """Whether a compiled call may take the polynomial cos and sin: float32 on the CPU, no gradient
     recorded, every entry of ``t`` (angles, or a rotation vector's components) within
-    ``_math.POLYNOMIAL_SINCOS_RANGE`` of 0 (NaN and infinities are not). Reads one flag from the CPU,
+    ``_polynomials.POLYNOMIAL_SINCOS_RANGE`` of 0 (NaN and infinities are not). Reads one flag from the CPU,
     where that waits on nothing."""
     if context[0] or context[2] != torch.float32 or not t.is_cpu or t.numel() == 0:
         return False
     low, high = torch.aminmax(t)
-    bound = _math.POLYNOMIAL_SINCOS_RANGE
+    bound = _polynomials.POLYNOMIAL_SINCOS_RANGE
     return bool((high <= bound) & (low >= -bound))
 
 
@@ -300,11 +300,11 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
     the backward (``docs/bench_profile.md``, "Session 14"). Off the CPU every batch is compiled.
 
     ``polynomial_atan2``: the kernel's compiled float32 CPU graphs without a gradient compute
-    ``atan2`` by ``_math.polynomial_atan2`` (compiled with the inductor option that keeps their
+    ``atan2`` by ``_polynomials.polynomial_atan2`` (compiled with the inductor option that keeps their
     compile time in bounds); nowhere else.
 
-    ``polynomial_sincos``: the same for ``_math.cos_sin_up_to_sign`` (``_math.polynomial_cos_sin``),
-    in calls whose first input's entries all lie within ``_math.POLYNOMIAL_SINCOS_RANGE`` (one
+    ``polynomial_sincos``: the same for ``_polynomials.cos_sin_up_to_sign`` (``_polynomials.polynomial_cos_sin``),
+    in calls whose first input's entries all lie within ``_polynomials.POLYNOMIAL_SINCOS_RANGE`` (one
     ``aminmax``: 0.6 ms per 1e6 rows of 3, where the polynomial saves 0.5-1 ms for rotation vectors
     and about 3 for Euler angles); other calls take a graph of their own with ``torch.cos`` and
     ``torch.sin``.
@@ -347,9 +347,9 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
                                      "atan2" if polynomial_atan2 else "sincos" if sincos else None)
             if compiled not in _past_limit:
                 if polynomial_atan2:  # (read only if this call traces; other kernels leave it alone)
-                    _math.KERNEL_CALL.polynomial_atan2 = True
+                    _polynomials.KERNEL_CALL.polynomial_atan2 = True
                 if sincos:
-                    _math.KERNEL_CALL.polynomial_sincos = True
+                    _polynomials.KERNEL_CALL.polynomial_sincos = True
                 try:
                     if context[0]:
                         return _first_order_only(compiled(*tensors), tensors)
@@ -360,9 +360,9 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
                     _past_limit.add(compiled)
                 finally:
                     if polynomial_atan2:
-                        _math.KERNEL_CALL.polynomial_atan2 = False
+                        _polynomials.KERNEL_CALL.polynomial_atan2 = False
                     if sincos:
-                        _math.KERNEL_CALL.polynomial_sincos = False
+                        _polynomials.KERNEL_CALL.polynomial_sincos = False
             elif _set_stance is not None:  # its graphs still serve the layouts they were made for;
                 # a new one runs eagerly at once (no guard failure, recompile attempt and warning a call)
                 with _set_stance("eager_on_recompile"):

@@ -19,7 +19,8 @@ import torch
 from torch import Tensor
 
 from ._closed_form import Rule
-from ._math import atan2, bilinear, bilinear_terms, constant, literal, safe_sqrt, sparse_columns, zero_to_inf
+from ._math import bilinear, bilinear_terms, constant, literal, safe_sqrt, sparse_columns, zero_to_inf
+from ._polynomials import atan2
 from ._planes import columns, combinations, plane_buffer, rows, slot
 from .conventions import EULER_CONVENTIONS, EulerConvention
 from .matrix import _SHEPPERD, _SHEPPERD_OFFSET, _SHEPPERD_ROWS

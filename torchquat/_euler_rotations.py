@@ -14,7 +14,8 @@ import torch
 from torch import Tensor
 
 from ._closed_form import Rule, jacobian_rule
-from ._math import HALF_IDENTITY, bilinear, bilinear_terms, constant, contract, cos_sin_up_to_sign
+from ._math import HALF_IDENTITY, bilinear, bilinear_terms, constant, contract
+from ._polynomials import cos_sin_up_to_sign
 from ._planes import columns, plane_buffer, rows, slot
 from .conventions import EULER_CONVENTIONS, EulerConvention
 from .quaternion import basis_product

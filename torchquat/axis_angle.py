@@ -12,8 +12,9 @@ from . import _closed_form as closed_form
 from ._closed_form import Rule, jacobian_rule
 from ._dispatch import kernel
 from ._one_row import OneRow
-from ._math import (HALF_IDENTITY, constant, contract, cos_sin_up_to_sign, is_small, outer_product,
-                    small_angle_threshold, sum_of_products, sum_of_squares)
+from ._math import (HALF_IDENTITY, constant, contract, is_small, outer_product, small_angle_threshold,
+                    sum_of_products, sum_of_squares)
+from ._polynomials import cos_sin_up_to_sign
 from ._planes import columns, plane_buffer, rows, slot
 from ._validation import prepare, restore
 from .matrix import HOMOGENEOUS, matrix_to_quat_unchecked, quat_to_matrix_unchecked

@@ -1,0 +1,153 @@
+"""Float32 stand-ins for ``atan2``, ``cos`` and ``sin`` in plain arithmetic, which inductor's CPU
+loops vectorise where SLEEF's functions cost more than the rest of a kernel: taken only in the
+compiled kernels' own float32 CPU graphs that record no gradient (``torchquat._dispatch`` marks
+those calls in :data:`KERNEL_CALL`), never eagerly, in training graphs or in a user's own
+``torch.compile``. See ``docs/bench_profile.md``, "A polynomial ``atan2``" and "A polynomial cos
+and sin"."""
+
+import math
+import threading
+
+import torch
+from torch import Tensor
+
+from ._math import _assume_constant_result, literal
+
+# atan(a) / a as a polynomial in s = a^2 on [0, 1], coefficients of s^0 .. s^8: a least-squares fit
+# of the relative error, reweighted towards its peaks (near minimax), made in float64 for this
+# project. Relative error 1.5e-8 on [0, 1], a quarter of float32's half ulp.
+_ATAN_POLYNOMIAL = (0.9999999847681496, -0.33333073352527315, 0.19992619449107119, -0.14203644566395404,
+                    0.10640933574603807, -0.07504292329681422, 0.04269148190998183, -0.01606860033028519,
+                    0.002849881261071871)
+_ATAN2_CONSTANTS = (0.0, 1.0, 0.5 * math.pi, math.pi)
+
+
+def polynomial_atan2(y: Tensor, x: Tensor) -> Tensor:
+    """``atan2(y, x)`` in plain arithmetic that a compiled loop vectorises: the octant's ratio
+    ``a = min(|x|, |y|) / max(|x|, |y|)`` in ``[0, 1]``, ``atan(a)`` by :data:`_ATAN_POLYNOMIAL`,
+    then ``pi/2 - r`` above the diagonal, ``pi - r`` for ``x`` negative (its sign bit: ``-0.0``
+    too) and ``y``'s sign. In float32 within 2.3 ulp of the exact value (``torch.atan2``: 0.9 ulp)
+    and keeps ``atan2``'s special values: signed zeros (``atan2(-0.0, -1) = -pi``), ``(0, 0)``,
+    infinities and NaN. Accurate relative to the result near 0 (``a`` and the polynomial are).
+
+    Inductor's CPU loops call SLEEF's ``atan2`` at about 3 ns an element on an AMD EPYC (12 ms per
+    4e6 elements); this takes 6 ms there (see ``docs/bench_profile.md``). For float32 only: float64
+    would need a longer polynomial.
+
+    Example:
+        >>> y, x = torch.tensor([1.0, -0.0, 3.0]), torch.tensor([1.0, -1.0, -4.0])
+        >>> torch.allclose(polynomial_atan2(y, x), torch.atan2(y, x))
+        True
+    """
+    zero, one, half_pi, pi = literal(_ATAN2_CONSTANTS)
+    ax, ay = x.abs(), y.abs()
+    larger, smaller = torch.maximum(ax, ay), torch.minimum(ax, ay)  # (NaN propagates)
+    # (0, 0) -> 0 and (inf, inf) -> 1 (the diagonal), as atan2's special values
+    a = torch.where(larger == zero, zero, torch.where(smaller == larger, one, smaller / larger))
+    s = a * a
+    coefficients = literal(_ATAN_POLYNOMIAL)
+    p = coefficients[-1]
+    for c in coefficients[-2::-1]:
+        p = p * s + c
+    # pi/2 - r above the diagonal, pi - that for x negative (its sign bit, by copysign: signbit is
+    # no vectorised loop in inductor's CPU code): K + S r, one rounding, r read once
+    above, negative = ay > ax, torch.copysign(torch.ones_like(x), x) < zero
+    offset = torch.where(above, half_pi, torch.where(negative, pi, zero))
+    sign = torch.where(above != negative, -one, one)
+    return torch.copysign(offset + sign * (p * a), y)
+
+
+# Set by the compiled kernels' dispatcher (torchquat._dispatch) while it calls a kernel marked
+# ``polynomial_atan2``, whose graph inductor compiles with the option that makes that affordable.
+KERNEL_CALL = threading.local()
+
+
+@_assume_constant_result
+def _in_polynomial_atan2_kernel() -> bool:
+    """Whether this trace is one of those kernels' (read at trace time, with no guard on it)."""
+    return getattr(KERNEL_CALL, "polynomial_atan2", False)
+
+
+def atan2(y: Tensor, x: Tensor, out=None) -> Tensor:
+    """``torch.atan2(y, x)``; in the compiled kernels' own graphs of float32 CPU tensors that record
+    no gradient, :func:`polynomial_atan2` (2x faster in inductor's loops, within 2.3 ulp).
+
+    Not where a gradient is recorded: ``torch.atan2``'s derivative is exact, the polynomial's,
+    through ``min``/``max``, would be 0 on the diagonal ``|x| = |y|``. Not in a user's own
+    ``torch.compile`` of code that calls torchquat: inductor inlines the polynomial into every
+    reader of its result, which multiplied the kernels' compile time by 5-17 with the default
+    options (the kernels' graphs are compiled with ``realize_cpu_opcount_threshold``; see
+    ``_dispatch``)."""
+    if (out is None and torch.compiler.is_compiling() and y.dtype == torch.float32 and y.is_cpu
+            and not (torch.is_grad_enabled() and (y.requires_grad or x.requires_grad))
+            and _in_polynomial_atan2_kernel()):
+        return polynomial_atan2(y, x)
+    return torch.atan2(y, x, out=out)
+
+
+# cos and sin up to a common sign, for rotations built from half angles (a quaternion and its
+# negative are one rotation). Cody and Waite's reduction by pi/2 in three float32 parts, without
+# fma (inductor's CPU loops write none; Moshier's Cephes sinf.c split: k * 1.5703125 is exact for
+# |k| < 2^16), then Cephes' float32 polynomials on [-pi/4, pi/4] (minimax for float32).
+_PI_2_PARTS = (2.0 / math.pi, 1.5703125, 4.837512969970703125e-4, 7.54978995489188216e-8)
+_SIN_POLYNOMIAL = (-1.6666654611e-1, 8.3321608736e-3, -1.9515295891e-4)  # sin r = r + r^3 P(r^2)
+_COS_POLYNOMIAL = (4.166664568298827e-2, -1.388731625493765e-3, 2.443315711809948e-5)  # 1 - r^2/2 + r^4 P(r^2)
+_SINCOS_CONSTANTS = (0.0, 0.5, 1.0)
+# Where the three-part reduction holds (measured: within 9.2e-8 of float64's cos and sin up to
+# |x| = 1e4, 1e-6 at 1e5, 0.03 at 1e6): the dispatcher sends larger angles to torch.cos and sin.
+POLYNOMIAL_SINCOS_RANGE = 8192.0
+
+
+def polynomial_cos_sin(x: Tensor):
+    """``(cos x, sin x)`` up to a sign common to both (so ``(-cos x, -sin x)`` in some rows), in
+    plain arithmetic that a compiled loop vectorises: ``k = round(2x / pi)``, ``r = x - k pi / 2``
+    by Cody and Waite's three-part reduction (:data:`_PI_2_PARTS`), Cephes' polynomials in ``r``,
+    and ``(-sin r, cos r)`` for odd ``k``, which is ``(cos x, sin x)`` up to the sign of
+    ``(-1)^((k - 1) / 2)``; even ``k``: ``(cos r, sin r)``, up to ``(-1)^(k / 2)``. Skipping that
+    sign saves the quadrant's tests: its callers build rotations from half angles, where it
+    flips a quaternion that they then standardise (``w >= 0``) or square (a matrix).
+
+    Float32 only, for ``|x| <=`` :data:`POLYNOMIAL_SINCOS_RANGE` (within 9.2e-8 of the exact values,
+    against 3.6e-8 for ``torch.sin``; beyond about 1e4 the reduction loses digits). ``sin(+-0)`` is
+    ``+-0``; infinities and NaN give NaN, as ``torch.sin`` does.
+
+    Inductor's CPU loops compute ``cos`` and ``sin`` with SLEEF at about 0.9 ns an element each
+    on an AMD EPYC: Euler angles to a quaternion spent 5.5 of 8.3 ms per 1e6 rows in them, and
+    2.5 with this (see ``docs/bench_profile.md``).
+
+    Example:
+        >>> x = torch.tensor([0.5, 2.0, -4.0, 100.0])
+        >>> c, s = polynomial_cos_sin(x)
+        >>> sign = torch.sign(c * torch.cos(x) + s * torch.sin(x))
+        >>> torch.allclose(c * sign, torch.cos(x)) and torch.allclose(s * sign, torch.sin(x))
+        True
+    """
+    two_over_pi, a, b, c = literal(_PI_2_PARTS)
+    zero, half, one = literal(_SINCOS_CONSTANTS)
+    k = torch.round(x * two_over_pi)
+    r = ((x - k * a) - k * b) - k * c
+    r2 = r * r
+    p_sin, p_cos = literal(_SIN_POLYNOMIAL), literal(_COS_POLYNOMIAL)
+    sin_r = r + r * r2 * (p_sin[0] + r2 * (p_sin[1] + r2 * p_sin[2]))
+    cos_r = (one - half * r2) + r2 * r2 * (p_cos[0] + r2 * (p_cos[1] + r2 * p_cos[2]))
+    odd = k - 2.0 * torch.round(k * half) != zero
+    # x itself at x = +-0, so that sin(-0.0) = -0.0 (both the reduction and the polynomial's sum round it to +0.0)
+    return torch.where(odd, -sin_r, cos_r), torch.where(x == zero, x, torch.where(odd, cos_r, sin_r))
+
+
+@_assume_constant_result
+def _in_polynomial_sincos_kernel() -> bool:
+    """Whether this trace is one of the kernels whose dispatcher found every angle within
+    :data:`POLYNOMIAL_SINCOS_RANGE` (read at trace time; the dispatcher keeps its graphs apart)."""
+    return getattr(KERNEL_CALL, "polynomial_sincos", False)
+
+
+def cos_sin_up_to_sign(x: Tensor):
+    """``(torch.cos(x), torch.sin(x))``; in the compiled kernels' own graphs of float32 CPU tensors
+    that record no gradient, and whose angles the dispatcher found within
+    :data:`POLYNOMIAL_SINCOS_RANGE`, :func:`polynomial_cos_sin`: the same up to a sign common to
+    both, 2x faster in inductor's loops. For callers that build rotations from half angles."""
+    if (torch.compiler.is_compiling() and x.dtype == torch.float32 and x.is_cpu
+            and not (torch.is_grad_enabled() and x.requires_grad) and _in_polynomial_sincos_kernel()):
+        return polynomial_cos_sin(x)
+    return torch.cos(x), torch.sin(x)
