@@ -58,7 +58,9 @@ def polynomial_atan2(y: Tensor, x: Tensor) -> Tensor:
 
 
 # Set by the compiled kernels' dispatcher (torchquat._dispatch) while it calls a kernel marked
-# ``polynomial_atan2``, whose graph inductor compiles with the option that makes that affordable.
+# ``polynomial_atan2`` (attribute ``polynomial_atan2``), or one marked ``polynomial_sincos`` whose
+# angles lie within POLYNOMIAL_SINCOS_RANGE (``polynomial_sincos``); inductor compiles their graphs
+# with the option that makes the polynomials' compile affordable.
 KERNEL_CALL = threading.local()
 
 
