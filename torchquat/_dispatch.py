@@ -71,17 +71,18 @@ def _fresh_copy(fn: Callable, tag: int) -> Callable:
 
 # Inductor inlines a pointwise value into each of its readers unless it holds more operations than
 # this (default 50 on the CPU): the polynomial atan2's ~30 operations, read by several others in the
-# Euler kernels, made their compile 5-17x longer (m2e: 5 -> 65-89 s); with 20, 2x. The polynomial cos
-# and sin (~15 operations each, read by the products of Euler -> quat) took E -> q's compile from 3.3
-# to 23.5 s (uncached), 8.3 s with 20, 5.9 s with 10 (E -> R 5.7 -> 8.0 s), at the same speed.
-_POLYNOMIAL_OPTIONS = {"atan2": {"realize_cpu_opcount_threshold": 20}, "sincos": {"realize_cpu_opcount_threshold": 10}}
+# Euler kernels, made their compile 5-17x longer (m2e: 5 -> 65-89 s); with 20, 2x; with 10 (session
+# 23, Estrin's form) 1.0-1.6x, at the same speed. The polynomial cos and sin (~15 operations each, read
+# by the products of Euler -> quat) took E -> q's compile from 3.3 to 23.5 s (uncached), 8.3 s with
+# 20, 5.9 s with 10 (E -> R 5.7 -> 8.0 s), at the same speed.
+_POLYNOMIAL_OPTIONS = {"realize_cpu_opcount_threshold": 10}
 
 
-def _compiled_for(fn: Callable, static: Tuple, context: Tuple = (), polynomial: Optional[str] = None) -> Callable:
+def _compiled_for(fn: Callable, static: Tuple, context: Tuple = (), polynomial: bool = False) -> Callable:
     """The compiled ``fn`` for its static options (sorted ``(name, value)`` pairs) and the call's
     ``context`` (grad, inference mode, dtype, and for some kernels whether cos and sin are
-    polynomial): one compiled function for each. ``polynomial`` (``"atan2"`` or ``"sincos"``): a
-    kernel whose float32 graphs without a gradient take that polynomial of ``_polynomials``."""
+    polynomial): one compiled function for each. ``polynomial``: a kernel whose float32 graphs
+    without a gradient take a polynomial of ``_polynomials`` (``atan2``, or cos and sin)."""
     key = (fn, static, context)
     compiled = _compiled.get(key)
     if compiled is None:
@@ -106,7 +107,7 @@ def _compiled_for(fn: Callable, static: Tuple, context: Tuple = (), polynomial: 
             except ImportError:
                 pass
             if polynomial and not context[0] and context[2] == torch.float32:
-                inductor_options.update(_POLYNOMIAL_OPTIONS[polynomial])
+                inductor_options.update(_POLYNOMIAL_OPTIONS)
         compiled = _compiled[key] = torch.compile(_fresh_copy(bound, len(_compiled)), dynamic=True, fullgraph=True,
                                                      backend=_backend, options=inductor_options)
     return compiled
@@ -344,7 +345,7 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
             if polynomial_sincos:  # (a graph for each answer: the trace reads it as a constant)
                 context += (sincos,)
             compiled = _compiled_for(fn, tuple(sorted(static.items())), context,
-                                     "atan2" if polynomial_atan2 else "sincos" if sincos else None)
+                                     polynomial_atan2 or sincos)
             if compiled not in _past_limit:
                 if polynomial_atan2:  # (read only if this call traces; other kernels leave it alone)
                     _polynomials.KERNEL_CALL.polynomial_atan2 = True

@@ -228,7 +228,10 @@ def angles_parts(forms, conv: EulerConvention, eps: float, abcd2, out: Optional[
     else:
         y1_used, x1_used = torch.where(locked, 0.0, y1), torch.where(locked, 1.0, x1)  # t1 = 0 at lock
         t1 = atan2(y1_used, x1_used, out=final(2) if conv.intrinsic else None)
-    middle = atan2(two_h, z, out=final(1)) if conv.symmetric else atan2(z, two_h, out=final(1))
+    if conv.symmetric:  # (2h is a square root: +0.0 or positive, which the compiled polynomial may assume)
+        middle = atan2(two_h, z, out=final(1), y_nonnegative=True)
+    else:
+        middle = atan2(z, two_h, out=final(1), x_nonnegative=True)
     y_double, x_double = pick(y_zero, y_pi), pick(x_zero, x_pi)
     double = atan2(y_double, x_double)
     t3 = torch.addcmul(double, t1, step)  # D - tb t1 near 0, D + tb t1 near pi

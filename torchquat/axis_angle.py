@@ -14,7 +14,7 @@ from ._dispatch import kernel
 from ._one_row import OneRow
 from ._math import (HALF_IDENTITY, constant, contract, is_small, outer_product, small_angle_threshold,
                     sum_of_products, sum_of_squares)
-from ._polynomials import cos_sin_up_to_sign
+from ._polynomials import atan2, cos_sin_up_to_sign
 from ._planes import columns, plane_buffer, rows, slot
 from ._validation import prepare, restore
 from .matrix import HOMOGENEOUS, matrix_to_quat_unchecked, quat_to_matrix_unchecked
@@ -185,7 +185,8 @@ _COLUMNWISE_SHARE = 8.0
 _QUAT_TO_AXIS_ANGLE = jacobian_rule(_quat_to_axis_angle_small, _quat_to_axis_angle_with_jacobian, _quat_to_axis_angle_values)
 
 
-@kernel(blocked_row_dims=(1,), compiled_from_rows=2_048, one_row=OneRow("quat_to_axis_angle", (4,), (3,)))
+@kernel(blocked_row_dims=(1,), compiled_from_rows=2_048, polynomial_atan2=True,
+        one_row=OneRow("quat_to_axis_angle", (4,), (3,)))
 def quat_to_axis_angle_unchecked(q: Tensor) -> Tensor:
     if torch.compiler.is_compiling():
         return _quat_to_axis_angle_columnwise(q)
@@ -270,7 +271,7 @@ def _quat_to_axis_angle_columnwise_parts(q: Tensor, for_autograd: bool = False):
     else:
         n, inverse = torch.sqrt(n2), torch.reciprocal(w)
     # angle / (2 n), signed by the hemisphere (as the table path, copysign: -0.0 takes -1); rows() doubles it
-    m = torch.copysign(torch.where(small, inverse, torch.atan2(n, w) / n), w0)
+    m = torch.copysign(torch.where(small, inverse, atan2(n, w, y_nonnegative=True, x_nonnegative=True) / n), w0)
     buffer = plane_buffer(3, u, output=False)  # (rows() applies a table)
     v = [torch.mul(c, m, out=slot(buffer, i)) for i, c in enumerate(u)]
     return rows(v if buffer is None else buffer, _DOUBLE, "double3"), (w0, *u, n2, small, m)
@@ -366,7 +367,7 @@ def axis_angle_to_matrix_unchecked(v: Tensor) -> Tensor:
     return quat_to_matrix_unchecked(axis_angle_to_quat_unchecked(v))
 
 
-@kernel(blocked_row_dims=(2,), one_row=OneRow("matrix_to_axis_angle", (9,), (3,)))
+@kernel(blocked_row_dims=(2,), polynomial_atan2=True, one_row=OneRow("matrix_to_axis_angle", (9,), (3,)))
 def matrix_to_axis_angle_unchecked(R: Tensor) -> Tensor:
     return quat_to_axis_angle_unchecked(matrix_to_quat_unchecked(R))
 

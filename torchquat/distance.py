@@ -7,6 +7,7 @@ from . import _closed_form as closed_form
 from ._closed_form import Rule
 from ._dispatch import kernel
 from ._one_row import OneRow
+from ._polynomials import atan2
 from ._math import constant, is_small, norm_twice_differentiable, safe_sqrt, sum_of_products, sum_of_squares, zero_to_inf
 from ._planes import columns, planar, plane_buffer, rows, slot
 from ._validation import prepare_pair, restore
@@ -65,7 +66,7 @@ def _quat_distance_values(q1: Tensor, q2: Tensor) -> Tensor:
 _QUAT_DISTANCE = Rule(_quat_distance_small, _quat_distance_parts, _quat_distance_backward, _quat_distance_values)
 
 
-@kernel(blocked_row_dims=(1, 1), compiled_from_rows=512, one_row=OneRow("quat_geodesic_distance", (4, 4), ()))
+@kernel(blocked_row_dims=(1, 1), compiled_from_rows=512, polynomial_atan2=True, one_row=OneRow("quat_geodesic_distance", (4, 4), ()))
 def quat_geodesic_distance_unchecked(q1: Tensor, q2: Tensor) -> Tensor:
     # (the columns' forward wins from about 1,536 rows, 0.63x the time at 4,096, but squares
     # products of the inputs: their narrower norm range stays above 4,096 rows, on both modes)
@@ -105,7 +106,7 @@ def _quat_distance_columnwise_parts(q1: Tensor, q2: Tensor, safe: bool = False):
         wedge2 = torch.addcmul(wedge2, m, m)
     norms2 = torch.addcmul(wedge2, dot, dot)  # |q1|^2 |q2|^2: 0 only for a zero quaternion
     wedge = safe_sqrt(wedge2) if safe else torch.sqrt(wedge2)
-    angle = 2.0 * torch.atan2(wedge, dot.abs())
+    angle = 2.0 * atan2(wedge, dot.abs(), y_nonnegative=True, x_nonnegative=True)
     if safe:  # (under autograd: (n - n) / n is exactly 0, and its gradient too, for n > 0, and NaN
         # for n = 0, value and gradient; a where's NaN branch would give that row a zero gradient)
         distance = angle + (norms2 - norms2) / norms2
@@ -188,7 +189,8 @@ def quat_geodesic_distance(q1: Tensor, q2: Tensor) -> Tensor:
     return restore(quat_geodesic_distance_unchecked(q1, q2), dtype)
 
 
-@kernel(blocked_row_dims=(2, 2), compiled_from_rows=1_024, one_row=OneRow("matrix_geodesic_distance", (9, 9), ()))
+@kernel(blocked_row_dims=(2, 2), compiled_from_rows=1_024, polynomial_atan2=True,
+        one_row=OneRow("matrix_geodesic_distance", (9, 9), ()))
 def matrix_geodesic_distance_unchecked(R1: Tensor, R2: Tensor) -> Tensor:
     if torch.compiler.is_compiling():  # (the closed-form backward compiled: 31 ms against 32, not kept)
         return _matrix_distance_columnwise(R1, R2)
@@ -224,7 +226,7 @@ def _matrix_distance_columnwise_parts(R1: Tensor, R2: Tensor, safe: bool = False
     trace = sum_of_products(a, b)
     wedge2 = sum_of_squares(vee)
     wedge, cosine = safe_sqrt(wedge2) if safe else torch.sqrt(wedge2), trace - 1.0
-    return torch.atan2(wedge, cosine), (wedge2, wedge, cosine, *vee, *a, *b)
+    return atan2(wedge, cosine, y_nonnegative=True), (wedge2, wedge, cosine, *vee, *a, *b)
 
 
 def _matrix_distance_columnwise(R1: Tensor, R2: Tensor) -> Tensor:
