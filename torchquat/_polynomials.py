@@ -39,7 +39,8 @@ def _atan_of_ratio(a: Tensor) -> Tensor:
     return a * c[0] + (a * s) * tail
 
 
-def polynomial_atan2(y: Tensor, x: Tensor, y_nonnegative: bool = False, x_nonnegative: bool = False) -> Tensor:
+def polynomial_atan2(y: Tensor, x: Tensor, y_nonnegative: bool = False, x_nonnegative: bool = False,
+                     special_values: bool = True) -> Tensor:
     """``atan2(y, x)`` in plain arithmetic that a compiled loop vectorises: the octant's ratio
     ``a = min(|x|, |y|) / max(|x|, |y|)`` in ``[0, 1]``, ``atan(a)`` by :data:`_ATAN_POLYNOMIAL`,
     then ``pi/2 - r`` above the diagonal, ``pi - r`` for ``x`` negative (its sign bit: ``-0.0``
@@ -52,6 +53,12 @@ def polynomial_atan2(y: Tensor, x: Tensor, y_nonnegative: bool = False, x_nonneg
         y_nonnegative, x_nonnegative: the caller knows that every ``y`` (or ``x``) is ``+0.0``,
             positive or NaN (a square root, an ``abs``): the half plane's or quadrant's tests are
             skipped. A ``-0.0`` or a negative value there gives a wrong angle.
+        special_values: False for a caller whose rows with both arguments 0 or both infinite come
+            out NaN (or are discarded) anyway: those give NaN here, one test and one select fewer.
+
+    Returns:
+        The angle in radians, in ``[-pi, pi]`` (``[0, pi]`` for ``y_nonnegative``, ``[-pi/2, pi/2]``
+        for ``x_nonnegative``), of the inputs' shape.
 
     Inductor's CPU loops call SLEEF's ``atan2`` at about 3 ns an element on an AMD EPYC (12 ms per
     4e6 elements); this takes 6 ms there (see ``docs/bench_profile.md``). For float32 only: float64
@@ -68,8 +75,9 @@ def polynomial_atan2(y: Tensor, x: Tensor, y_nonnegative: bool = False, x_nonneg
     ax = x if x_nonnegative else x.abs()
     ay = y if y_nonnegative else y.abs()
     larger, smaller = torch.maximum(ax, ay), torch.minimum(ax, ay)  # (NaN propagates)
-    # (0, 0) -> 0 and (inf, inf) -> 1 (the diagonal), as atan2's special values
-    a = torch.where(larger == zero, zero, torch.where(smaller == larger, one, smaller / larger))
+    a = smaller / larger
+    if special_values:  # (0, 0) -> 0 and (inf, inf) -> 1 (the diagonal), as atan2's
+        a = torch.where(larger == zero, zero, torch.where(smaller == larger, one, a))
     r = _atan_of_ratio(a)
     above = ay > ax
     if x_nonnegative:
@@ -96,10 +104,11 @@ def _in_polynomial_atan2_kernel() -> bool:
     return getattr(KERNEL_CALL, "polynomial_atan2", False)
 
 
-def atan2(y: Tensor, x: Tensor, out=None, *, y_nonnegative: bool = False, x_nonnegative: bool = False) -> Tensor:
+def atan2(y: Tensor, x: Tensor, out=None, *, y_nonnegative: bool = False, x_nonnegative: bool = False,
+          special_values: bool = True) -> Tensor:
     """``torch.atan2(y, x)``; in the compiled kernels' own graphs of float32 CPU tensors that record
     no gradient, :func:`polynomial_atan2` (2x faster in inductor's loops, within 1.9 ulp), told
-    what the caller knows of the arguments' signs (see there; ``torch.atan2`` ignores it).
+    what the caller knows of the arguments (see there; ``torch.atan2`` ignores it).
 
     Not where a gradient is recorded: ``torch.atan2``'s derivative is exact, the polynomial's,
     through ``min``/``max``, would be 0 on the diagonal ``|x| = |y|``. Not in a user's own
@@ -110,7 +119,7 @@ def atan2(y: Tensor, x: Tensor, out=None, *, y_nonnegative: bool = False, x_nonn
     if (out is None and torch.compiler.is_compiling() and y.dtype == torch.float32 and y.is_cpu
             and not (torch.is_grad_enabled() and (y.requires_grad or x.requires_grad))
             and _in_polynomial_atan2_kernel()):
-        return polynomial_atan2(y, x, y_nonnegative, x_nonnegative)
+        return polynomial_atan2(y, x, y_nonnegative, x_nonnegative, special_values)
     return torch.atan2(y, x, out=out)
 
 

@@ -271,7 +271,9 @@ def _quat_to_axis_angle_columnwise_parts(q: Tensor, for_autograd: bool = False):
     else:
         n, inverse = torch.sqrt(n2), torch.reciprocal(w)
     # angle / (2 n), signed by the hemisphere (as the table path, copysign: -0.0 takes -1); rows() doubles it
-    m = torch.copysign(torch.where(small, inverse, atan2(n, w, y_nonnegative=True, x_nonnegative=True) / n), w0)
+    # (atan2's (0, 0) is a small row; at (inf, inf) its result over n is 0 or NaN, times u's infinity NaN)
+    angle = atan2(n, w, y_nonnegative=True, x_nonnegative=True, special_values=False)
+    m = torch.copysign(torch.where(small, inverse, angle / n), w0)
     buffer = plane_buffer(3, u, output=False)  # (rows() applies a table)
     v = [torch.mul(c, m, out=slot(buffer, i)) for i, c in enumerate(u)]
     return rows(v if buffer is None else buffer, _DOUBLE, "double3"), (w0, *u, n2, small, m)

@@ -106,7 +106,8 @@ def _quat_distance_columnwise_parts(q1: Tensor, q2: Tensor, safe: bool = False):
         wedge2 = torch.addcmul(wedge2, m, m)
     norms2 = torch.addcmul(wedge2, dot, dot)  # |q1|^2 |q2|^2: 0 only for a zero quaternion
     wedge = safe_sqrt(wedge2) if safe else torch.sqrt(wedge2)
-    angle = 2.0 * atan2(wedge, dot.abs(), y_nonnegative=True, x_nonnegative=True)
+    # (atan2's (0, 0) and (inf, inf) cases: a zero quaternion, or an infinity, is NaN below anyway)
+    angle = 2.0 * atan2(wedge, dot.abs(), y_nonnegative=True, x_nonnegative=True, special_values=False)
     if safe:  # (under autograd: (n - n) / n is exactly 0, and its gradient too, for n > 0, and NaN
         # for n = 0, value and gradient; a where's NaN branch would give that row a zero gradient)
         distance = angle + (norms2 - norms2) / norms2
