@@ -167,20 +167,25 @@ KERNELS = ["quat_to_euler[ZYX]", "quat_to_euler[zxz]", "matrix_to_euler[XZY]", "
 OTHER_KERNELS = ["quat_to_axis_angle", "matrix_to_axis_angle", "quat_geodesic_distance", "matrix_geodesic_distance"]
 
 
+def _compiled_and_eager_in_float32(fn, inputs):
+    """``fn`` on the inputs rounded to float32 without a gradient: compiled (the switch on), then eager."""
+    inputs = tuple(x.to(F32) for x in inputs)
+    with torch.no_grad():
+        out = fn(*inputs)
+        tq.use_compiled_kernels(False)
+        try:
+            return out, fn(*inputs)
+        finally:
+            tq.use_compiled_kernels(True)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", KERNELS)
 def test_compiled_float32_euler_angles_without_a_gradient_agree_with_eager(name, compiled):
     fn, generic, singular = ALL[name]
     convention = name[-4:-1]
     for make in (generic, singular):
-        inputs = tuple(x.to(F32) for x in make())
-        with torch.no_grad():
-            out = fn(*inputs)
-            tq.use_compiled_kernels(False)
-            try:
-                ref = fn(*inputs)
-            finally:
-                tq.use_compiled_kernels(True)
+        out, ref = _compiled_and_eager_in_float32(fn, make())
         # as rotations (next to lock single angles are ill-conditioned; exact half turns are
         # test_compiled_kernels.py's test_compiled_exact_half_turns_are_plus_pi_as_eager)
         assert torch.allclose(tq.euler_to_matrix(out, convention), tq.euler_to_matrix(ref, convention), atol=2e-6)
@@ -192,14 +197,7 @@ def test_compiled_float32_euler_angles_without_a_gradient_agree_with_eager(name,
 def test_compiled_float32_distances_and_rotation_vectors_without_a_gradient_agree_with_eager(name, compiled):
     fn, generic, singular = ALL[name]
     for make in (generic, singular):
-        inputs = tuple(x.to(F32) for x in make())
-        with torch.no_grad():
-            out = fn(*inputs)
-            tq.use_compiled_kernels(False)
-            try:
-                ref = fn(*inputs)
-            finally:
-                tq.use_compiled_kernels(True)
+        out, ref = _compiled_and_eager_in_float32(fn, make())
         assert torch.equal(out.isnan(), ref.isnan())
         out, ref = out.nan_to_num(), ref.nan_to_num()
         if "distance" in name:
