@@ -91,7 +91,8 @@ def test_a_half_plane_or_quadrant_known_to_the_caller_gives_the_general_forms_bi
 def test_without_special_values_only_pairs_of_zeros_and_of_infinities_change():
     values = torch.tensor([0.0, 1e-40, 1.0, 3e38, math.inf, math.nan])
     y, x = (t.flatten() for t in torch.meshgrid(values, values, indexing="ij"))
-    y, x = torch.cat([y, _sweep(100_000, seed=2)[0].abs()]), torch.cat([x, _sweep(100_000, seed=2)[1].abs()])
+    swept_y, swept_x = _sweep(100_000, seed=2)
+    y, x = torch.cat([y, swept_y.abs()]), torch.cat([x, swept_x.abs()])
     plain = _polynomials.polynomial_atan2(y, x, True, True, special_values=False)
     guarded = _polynomials.polynomial_atan2(y, x, True, True)
     changed = ~((plain == guarded) | (plain.isnan() & guarded.isnan()))
