@@ -151,6 +151,77 @@ def test_compiled_exact_half_turns_are_plus_pi_as_eager(convention, compiled):
             torch.testing.assert_close(angles, expected, rtol=0, atol=1e-6 if dtype == torch.float32 else 1e-12)
 
 
+# kernels made of two others, whose graphs without a gradient pass the quaternion's columns on
+COMPOSITE_KERNELS = ["euler_to_matrix[zxz]", "axis_angle_to_matrix", "matrix_to_axis_angle"]
+
+
+def _stacks_traced(fn, inputs, trace, monkeypatch) -> int:
+    """How many ``torch.stack`` results the one graph that ``trace(fn, inputs, backend)`` compiles
+    reads (dynamo keeps unread ones; inductor drops them)."""
+    import torchquat._dispatch as dispatch
+
+    counts = []
+
+    def backend(gm, example_inputs):
+        counts.append(sum(node.target is torch.stack and len(node.users) > 0 for node in gm.graph.nodes))
+        return gm.forward
+
+    monkeypatch.setattr(dispatch, "_backend", backend)
+    monkeypatch.setattr(dispatch, "_compiled", {})
+    torch._dynamo.reset()
+    trace(fn, inputs, backend)
+    assert len(counts) == 1
+    return counts[0]
+
+
+def _without_gradient(fn, inputs, backend):
+    with torch.no_grad():
+        fn(*inputs)
+
+
+def _with_gradient(fn, inputs, backend):
+    fn(*(x.detach().clone().requires_grad_() for x in inputs))
+
+
+def _users_compile(fn, inputs, backend):
+    tq.use_compiled_kernels(False)
+    try:
+        with torch.no_grad():
+            torch.compile(fn, backend=backend, fullgraph=True)(*inputs)
+    finally:
+        tq.use_compiled_kernels(True)
+
+
+@pytest.mark.parametrize("name", COMPOSITE_KERNELS)
+def test_composite_kernels_graphs_without_a_gradient_have_no_quaternion_between(name, compiled, monkeypatch):
+    fn, generic, _ = ALL[name]
+    counts = {trace.__name__.strip("_"): _stacks_traced(fn, generic(), trace, monkeypatch)
+              for trace in (_without_gradient, _with_gradient, _users_compile)}
+    # the quaternion's stack is gone; a training graph and a user's own compile (which torch.func
+    # may differentiate) keep it
+    assert counts["without_gradient"] == counts["with_gradient"] - 1, counts
+    assert counts["users_compile"] == counts["with_gradient"], counts
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name, dtype", [(name, torch.float32) for name in COMPOSITE_KERNELS]  # (polynomial cos, sin, atan2)
+                         + [("axis_angle_to_matrix", torch.float64)])
+def test_composite_kernels_in_one_loop_give_the_same_numbers(name, dtype, compiled, monkeypatch):
+    import torchquat._dispatch as dispatch
+
+    fn, generic, singular = ALL[name]
+    inputs = [tuple(x.to(dtype) for x in make()) for make in (generic, singular)]
+    with torch.no_grad():
+        fused = [fn(*x) for x in inputs]
+        monkeypatch.setattr(dispatch, "_compiled", {})
+        monkeypatch.setattr(dispatch, "_kernel_records_no_gradient", lambda: False)  # the two kernels' graph
+        torch._dynamo.reset()
+        apart = [fn(*x) for x in inputs]
+    for a, b in zip(fused, apart):
+        assert torch.equal(a.isnan(), b.isnan())
+        assert torch.equal(a.nan_to_num(), b.nan_to_num())
+
+
 def test_compiled_graphs_take_only_the_input_tensors_and_their_sizes(compiled, monkeypatch):
     # Dynamo turns every float a trace reads from a module-level table (or a float static option,
     # an eps) into a graph input that each call boxes in a tensor: 0.5-1 ms of host time for
