@@ -113,19 +113,6 @@ def _compiled_for(fn: Callable, static: Tuple, context: Tuple = (), polynomial: 
     return compiled
 
 
-@_math._assume_constant_result
-def _kernel_records_no_gradient() -> bool:
-    return getattr(_polynomials.KERNEL_CALL, "no_gradient", False)
-
-
-def compiled_without_gradient() -> bool:
-    """Whether this trace is one of the dispatcher's own compiled graphs that record no gradient
-    (read at trace time, with no guard on it: the dispatcher keys its graphs on whether a gradient
-    is recorded, so each graph always reads the same answer). Never in a user's own
-    ``torch.compile``, which may be differentiated (by ``torch.func`` too)."""
-    return _is_compiling() and _kernel_records_no_gradient()
-
-
 # A first test, cheap enough for one rotation (0.1 us): no batch below one thread's default bound
 # is blocked; _run_blocked reads the live settings.
 _BLOCKED_FROM = _math.BLOCK_ROWS * _math.BLOCK_MIN_BLOCKS
@@ -360,7 +347,6 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
             compiled = _compiled_for(fn, tuple(sorted(static.items())), context,
                                      polynomial_atan2 or sincos)
             if compiled not in _past_limit:
-                _polynomials.KERNEL_CALL.no_gradient = not context[0]  # (read only if this call traces)
                 if polynomial_atan2:  # (read only if this call traces; other kernels leave it alone)
                     _polynomials.KERNEL_CALL.polynomial_atan2 = True
                 if sincos:
@@ -374,7 +360,6 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
                         raise
                     _past_limit.add(compiled)
                 finally:
-                    _polynomials.KERNEL_CALL.no_gradient = False
                     if polynomial_atan2:
                         _polynomials.KERNEL_CALL.polynomial_atan2 = False
                     if sincos:

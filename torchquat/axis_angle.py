@@ -10,14 +10,14 @@ from torch import Tensor
 
 from . import _closed_form as closed_form
 from ._closed_form import Rule, jacobian_rule
-from ._dispatch import compiled_without_gradient, kernel
+from ._dispatch import kernel
 from ._one_row import OneRow
 from ._math import (HALF_IDENTITY, constant, contract, is_small, outer_product, small_angle_threshold,
                     sum_of_products, sum_of_squares)
 from ._polynomials import atan2, cos_sin_up_to_sign
 from ._planes import columns, plane_buffer, rows, slot
 from ._validation import prepare, restore
-from .matrix import HOMOGENEOUS, matrix_to_quat_unchecked, quat_columns_to_matrix, quat_to_matrix_unchecked, shepperd_columns
+from .matrix import HOMOGENEOUS, matrix_to_quat_unchecked, quat_to_matrix_unchecked
 
 __all__ = ["axis_angle_to_quat", "quat_to_axis_angle", "axis_angle_to_matrix", "matrix_to_axis_angle"]
 
@@ -258,15 +258,14 @@ _AXIS_ANGLE_TO_QUAT_COLUMNWISE = Rule(_axis_angle_to_quat_columnwise, _axis_angl
                                       lambda v: _axis_angle_to_quat_columnwise_parts(v, values=True)[0])
 
 
-def _quat_to_axis_angle_columnwise_parts(q, for_autograd: bool = False):
+def _quat_to_axis_angle_columnwise_parts(q: Tensor, for_autograd: bool = False):
     """The rotation vector column by column, and what the closed-form backward needs.
     ``for_autograd`` (the plain forward): the series branch's rows get substitutes that keep
-    autograd away from 0 / 0; otherwise a NaN in a branch that ``where`` drops is harmless.
-    ``q``: quaternions, or their four columns (a compiled kernel's own)."""
-    w0, *u = q if isinstance(q, (tuple, list)) else columns(q)
+    autograd away from 0 / 0; otherwise a NaN in a branch that ``where`` drops is harmless."""
+    w0, *u = columns(q)
     n2 = sum_of_squares(u)
     w = w0.abs()
-    small = torch.addcmul(n2, w, w, value=-torch.finfo(w0.dtype).eps) <= 0  # n^2 <= eps w^2
+    small = torch.addcmul(n2, w, w, value=-torch.finfo(q.dtype).eps) <= 0  # n^2 <= eps w^2
     if for_autograd:
         n, inverse = torch.sqrt(torch.where(small, 1.0, n2)), torch.reciprocal(torch.where(small, w, 1.0))
     else:
@@ -367,16 +366,11 @@ def axis_angle_to_matrix_unchecked(v: Tensor) -> Tensor:
     # the chained Jacobian), many through the two kernels.
     if is_small(v, 3, share=0.25):
         return closed_form.apply(_AXIS_ANGLE_TO_MATRIX, v)
-    if compiled_without_gradient():  # (as in euler_to_matrix_unchecked: one loop, the same numbers)
-        _, (*h, _, w, s) = _axis_angle_to_quat_columnwise_parts(v, for_autograd=True)
-        return quat_columns_to_matrix([w] + [c * s for c in h])
     return quat_to_matrix_unchecked(axis_angle_to_quat_unchecked(v))
 
 
 @kernel(blocked_row_dims=(2,), polynomial_atan2=True, one_row=OneRow("matrix_to_axis_angle", (9,), (3,)))
 def matrix_to_axis_angle_unchecked(R: Tensor) -> Tensor:
-    if compiled_without_gradient():  # (as in euler_to_matrix_unchecked: one loop, the same numbers)
-        return _quat_to_axis_angle_columnwise_parts(shepperd_columns(R), for_autograd=True)[0]
     return quat_to_axis_angle_unchecked(matrix_to_quat_unchecked(R))
 
 

@@ -93,13 +93,7 @@ def quat_to_matrix_unchecked(q: Tensor) -> Tensor:
     if planar(q, 4, _PLANAR_SHARE):
         return closed_form.apply(_QUAT_TO_MATRIX_PLANAR, q)
     # Many (compiled: one fused loop): the outer product's (N, 16) buffer costs more than it saves.
-    return quat_columns_to_matrix(q.unbind(-1))
-
-
-def quat_columns_to_matrix(q) -> Tensor:
-    """:func:`quat_to_matrix_unchecked`'s many-rows formula on the quaternion's four columns (a
-    compiled kernel that computes them passes them on: one loop, no ``(N, 4)`` buffer between)."""
-    w, x, y, z = q
+    w, x, y, z = q.unbind(-1)
     s = 2.0 / (w * w + x * x + y * y + z * z)
     xs, ys, zs = x * s, y * s, z * s
     wx, wy, wz = w * xs, w * ys, w * zs
@@ -217,21 +211,6 @@ def _shepperd_columnwise(R: Tensor) -> Tensor:
     into one vectorised loop (a ``gather`` from a computed buffer would not fuse), and for large
     eager CPU batches (contiguous columns, the 10 sums in one matmul; 2.5x fewer passes than the
     table path's argmax and gather)."""
-    row, scale = _shepperd_row_and_scale(R)
-    buffer = plane_buffer(4, row, _SHEPPERD_PLANAR_SHARE)  # (forward only: autograd refuses out=)
-    q = [torch.mul(c, scale, out=slot(buffer, i)) for i, c in enumerate(row)]
-    return rows(q if buffer is None else buffer, share=_SHEPPERD_PLANAR_SHARE)
-
-
-def shepperd_columns(R: Tensor):
-    """The quaternion of :func:`_shepperd_columnwise` as four columns (compiled: for a formula
-    that reads them, in the same loop)."""
-    row, scale = _shepperd_row_and_scale(R)
-    return [c * scale for c in row]
-
-
-def _shepperd_row_and_scale(R: Tensor):
-    """The chosen row of ``4 q q^T`` and the factor (``1 / |row|``, signed) that makes it ``q``."""
     vals = columns(R.flatten(-2), _SHEPPERD, "shepperd", _SHEPPERD_OFFSET, _SHEPPERD_PLANAR_SHARE)
     compiling = torch.compiler.is_compiling()
     best, row = vals[0], [vals[i] for i in _SHEPPERD_ROWS[0]]
@@ -248,7 +227,10 @@ def _shepperd_row_and_scale(R: Tensor):
     key = torch.add(torch.add(torch.add(torch.sign(z), torch.sign(y), alpha=2.0), torch.sign(x), alpha=4.0),
                     torch.sign(w), alpha=8.0)  # standardize_sign's key: w >= 0, then the first non-zero
     scale = torch.rsqrt(sum_of_squares(row))
-    return row, scale * (torch.where(key < 0, -1.0, 1.0) if compiling else torch.copysign(constant("one", 1.0, key), key))
+    scale = scale * (torch.where(key < 0, -1.0, 1.0) if compiling else torch.copysign(constant("one", 1.0, key), key))
+    buffer = plane_buffer(4, row, _SHEPPERD_PLANAR_SHARE)  # (forward only: autograd refuses out=)
+    q = [torch.mul(c, scale, out=slot(buffer, i)) for i, c in enumerate(row)]
+    return rows(q if buffer is None else buffer, share=_SHEPPERD_PLANAR_SHARE)
 
 
 def matrix_to_quat(R: Tensor) -> Tensor:
