@@ -316,3 +316,35 @@ def test_batched_gradients_and_hessians_take_the_tensor_kernels_derivative():
     hessian = torch.autograd.functional.hessian(lambda x: fn(x).sum(), q)
     two = torch.autograd.functional.hessian(lambda x: fn(torch.stack([x, x]))[0].sum(), q)
     assert torch.allclose(hessian, two)
+
+
+# one function of each kind (the Euler ones in one convention each)
+STEMS = sorted({name.split("[")[0]: name for name in ONE_ROW}.values())
+
+
+@pytest.mark.parametrize("name", STEMS)
+def test_compiled_autograd_through_the_one_row_node_gives_its_gradients(name):
+    # torch.compile's compiled autograd traces the node's Python backward: the formulas' Jacobian
+    # is then a constant of the trace (reading the traced gradient's numbers made dynamo fail a guard)
+    from torch._dynamo import compiled_autograd
+
+    fn, generic, _ = ALL[name]
+    inputs = generic()
+    traced = []
+
+    def compiler(gm):
+        traced.append(gm)
+        return torch.compile(gm, backend="eager")
+
+    torch._dynamo.reset()
+    for i in range(2):  # (the second row: the cached graph, with that row's own Jacobian)
+        row = tuple(x[i].detach().clone().requires_grad_() for x in inputs)
+        out = fn(*row)
+        assert type(out.grad_fn).__name__ == "_OneRowGradientBackward", name
+        weights = torch.linspace(0.5, 1.5, out.numel(), dtype=out.dtype).reshape(out.shape)
+        expected = torch.autograd.grad((out * weights).sum(), row)
+        with compiled_autograd._enable(compiler):
+            (fn(*row) * weights).sum().backward()
+        for x, g in zip(row, expected):
+            torch.testing.assert_close(x.grad, g, rtol=1e-12, atol=1e-12)
+    assert traced, "compiled autograd compiled nothing"

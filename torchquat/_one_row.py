@@ -11,7 +11,8 @@ dtype (each entry rounded once: a float32 result is the float64 one rounded) thr
 ``torch.from_numpy`` (so, like any such tensor, its storage cannot be resized in place). Where a graph is
 recorded, one autograd node (:class:`_OneRowGradient`) holds the formulas' vector-Jacobian
 product, also in Python floats; a graph of the gradient (double backward) differentiates the tensor
-kernel instead, so higher derivatives are the tensor kernels' own.
+kernel instead, so higher derivatives are the tensor kernels' own; compiled autograd, which traces
+the node's backward, gets the formulas' Jacobian as a constant of its trace.
 
 A public function offers its arguments as given (``kernel.at_one_row``) before it validates them:
 validation's attribute reads (3-5 us) were a quarter to a third of a one-row call. :func:`run`
@@ -183,6 +184,15 @@ class _OneRowGradient(torch.autograd.Function):
         _, vjp, kernel, static, numpy_dtype, out_size, shapes = ctx.plan
         wanted = ctx.needs_input_grad[1:]
         create_graph = _grad_enabled()
+        if _is_compiling() and not create_graph:
+            # compiled autograd traces this backward: reading the traced gradient's numbers would
+            # specialise the graph on them (dynamo then fails its own guard). The formulas'
+            # Jacobian, from the vector-Jacobian product of each unit vector, is a constant of the
+            # trace instead, and the gradient one product with it.
+            rows = [vjp([float(i == j) for j in range(out_size)]) for i in range(out_size)]
+            flat = grad.reshape(1, out_size)
+            return (None, *[(flat @ torch.tensor([row[k] for row in rows], dtype=grad.dtype)).reshape(shape)
+                            if w else None for k, (shape, w) in enumerate(zip(shapes, wanted))])
         if create_graph or _legacy_batched(grad) or type(grad) is not Tensor:
             # A graph of the gradient (double backward), or autograd's batched gradients: the
             # tensor kernel's own derivative, of views of the inputs (as _closed_form does)
