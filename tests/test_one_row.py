@@ -325,7 +325,8 @@ STEMS = sorted({name.split("[")[0]: name for name in ONE_ROW}.values())
 @pytest.mark.parametrize("name", STEMS)
 def test_compiled_autograd_through_the_one_row_node_gives_its_gradients(name):
     # torch.compile's compiled autograd traces the node's Python backward: the formulas' Jacobian
-    # is then a constant of the trace (reading the traced gradient's numbers made dynamo fail a guard)
+    # is then a constant of the trace (reading the traced gradient's numbers made dynamo fail a
+    # guard); while it is on, a recorded call takes the tensor kernel (no constants to recompile on)
     from torch._dynamo import compiled_autograd
 
     fn, generic, _ = ALL[name]
@@ -340,11 +341,19 @@ def test_compiled_autograd_through_the_one_row_node_gives_its_gradients(name):
     for i in range(2):  # (the second row: the cached graph, with that row's own Jacobian)
         row = tuple(x[i].detach().clone().requires_grad_() for x in inputs)
         out = fn(*row)
-        assert type(out.grad_fn).__name__ == "_OneRowGradientBackward", name
         weights = torch.linspace(0.5, 1.5, out.numel(), dtype=out.dtype).reshape(out.shape)
         expected = torch.autograd.grad((out * weights).sum(), row)
+        out = fn(*row)  # a node recorded before compiled autograd is switched on: its traced backward
+        assert type(out.grad_fn).__name__ == "_OneRowGradientBackward", name
         with compiled_autograd._enable(compiler):
-            (fn(*row) * weights).sum().backward()
-        for x, g in zip(row, expected):
-            torch.testing.assert_close(x.grad, g, rtol=1e-12, atol=1e-12)
+            (out * weights).sum().backward()
+            found = [x.grad for x in row]
+            for x in row:
+                x.grad = None
+            out = fn(*row)  # recorded while it is on: the tensor kernel's nodes
+            assert type(out.grad_fn).__name__ != "_OneRowGradientBackward", name
+            (out * weights).sum().backward()
+        for x, g, g_found in zip(row, expected, found):
+            torch.testing.assert_close(g_found, g, rtol=1e-12, atol=1e-12)
+            torch.testing.assert_close(x.grad, g, rtol=1e-9, atol=1e-9)  # (as the one-row tests against the kernels)
     assert traced, "compiled autograd compiled nothing"

@@ -11,8 +11,9 @@ dtype (each entry rounded once: a float32 result is the float64 one rounded) thr
 ``torch.from_numpy`` (so, like any such tensor, its storage cannot be resized in place). Where a graph is
 recorded, one autograd node (:class:`_OneRowGradient`) holds the formulas' vector-Jacobian
 product, also in Python floats; a graph of the gradient (double backward) differentiates the tensor
-kernel instead, so higher derivatives are the tensor kernels' own; compiled autograd, which traces
-the node's backward, gets the formulas' Jacobian as a constant of its trace.
+kernel instead, so higher derivatives are the tensor kernels' own. While compiled autograd is on,
+a call that records a graph takes the tensor kernel; a node recorded before it was switched on gives
+that trace the formulas' Jacobian as a constant.
 
 A public function offers its arguments as given (``kernel.at_one_row``) before it validates them:
 validation's attribute reads (3-5 us) were a quarter to a third of a one-row call. :func:`run`
@@ -30,6 +31,7 @@ input, an exception from ``math`` (a zero quaternion's division, say), a row a f
 
 import math
 import os
+import sys
 from typing import Callable, NamedTuple, Optional, Sequence, Tuple
 
 import numpy
@@ -149,7 +151,7 @@ def run(one_row: OneRow, kernel: Callable, tensors: Sequence[Tensor], static) ->
         if not (records and _grad_enabled()):
             return _tensor(_formula(one_row.name)(*rows, dtype=dtype, **static), numpy_dtype, shape)
         with_gradient = _formula(one_row.name + "_vjp")
-        if with_gradient is None:
+        if with_gradient is None or _compiled_autograd_enabled():
             return None
         out, vjp = with_gradient(*rows, dtype=dtype, **static)
     except _FAILURES:
@@ -163,6 +165,15 @@ def run(one_row: OneRow, kernel: Callable, tensors: Sequence[Tensor], static) ->
     if _apply_node is None:
         _apply_node = _bind_apply()
     return _apply_node(plan, *tensors)
+
+
+def _compiled_autograd_enabled() -> bool:
+    """Whether ``torch._dynamo.compiled_autograd`` is on (it can be only once imported): the tensor
+    kernels' nodes then keep the gradient's numbers in tensors, which its traces take as inputs.
+    (This node's backward, traced, takes the formulas' Jacobian as constants: correct, but each new
+    row's would recompile the trace.)"""
+    module = sys.modules.get("torch._dynamo.compiled_autograd")
+    return module is not None and module.compiled_autograd_enabled
 
 
 def _bind_apply() -> Callable:
