@@ -1,7 +1,8 @@
-"""The float32 cos and sin of the compiled CPU kernels that build rotations from half angles
-(``_polynomials.polynomial_cos_sin``): its accuracy, its common sign and special values, where the
-dispatcher takes it (angles within ``_polynomials.POLYNOMIAL_SINCOS_RANGE``), and those kernels against
-float64."""
+"""The float32 cos and sin of the compiled CPU kernels that build rotations from half angles:
+the reduced polynomial (``_polynomials.polynomial_cos_sin``) and the direct ones without a reduction
+(``half_cos_sinc``, ``direct_cos_sinc``): their accuracy, signs and special values, where the
+dispatcher takes each (angles within ``_polynomials.POLYNOMIAL_SINCOS_RANGE``, and within the
+kernels' direct bounds), and those kernels against float64."""
 
 import math
 
@@ -57,6 +58,41 @@ def test_the_polynomial_keeps_sines_signed_zeros_and_gives_nan_where_torch_does(
     assert torch.isnan(torch.sin(x[2:])).all() and torch.isnan(c[2:]).all() and torch.isnan(s[2:]).all()
 
 
+def _float64_errors(x: torch.Tensor, c: torch.Tensor, sin: torch.Tensor):
+    exact = x.double()
+    return (c.double() - torch.cos(exact)).abs(), (sin.double() - torch.sin(exact)).abs()
+
+
+def test_the_direct_polynomials_are_cos_and_sin_over_their_ranges():
+    g = torch.Generator().manual_seed(1)
+    # half_cos_sinc: y up to 1.0005 pi / 2 (the direct Euler bound's half angle); direct_cos_sinc: x up to
+    # 1.0005 pi (a rotation vector's half angle for entries within the direct bound), both signs
+    for fn, top, cos_bound, sin_bound in ((_polynomials.half_cos_sinc, _polynomials.DIRECT_EULER_ANGLES / 2, 1e-7, 2.2e-7),
+                                          (_polynomials.direct_cos_sinc, _polynomials.DIRECT_ROTATION_VECTOR_ENTRIES * 3 ** 0.5 / 2, 3.8e-7, 2.8e-7)):
+        x = torch.cat([torch.rand(1_000_000, generator=g, dtype=F64) * 2 - 1,
+                       torch.linspace(-1, 1, 200_001, dtype=F64)]).mul(top).to(F32)
+        assert x.abs().max() <= top * (1 + 2 ** -23)
+        c, sinc = fn(x * x)
+        cos_error, sin_error = _float64_errors(x, c, x * sinc)
+        assert cos_error.max() < cos_bound and sin_error.max() < sin_bound, (fn, cos_error.max(), sin_error.max())
+        assert cos_error.mean() < 6e-8 and sin_error.mean() < 6e-8
+        # exact at 0: cos 0 = 1, sin(x) / x = 1, so x * sinc keeps -0.0 and tiny angles to the last bit
+        tiny = torch.tensor([0.0, -0.0, 1e-30, -1e-20, 1e-4])
+        c, sinc = fn(tiny * tiny)
+        assert c[:4].tolist() == [1.0] * 4 and sinc[:4].tolist() == [1.0] * 4
+        assert torch.signbit(tiny * sinc).tolist() == [False, True, False, True, False]
+        assert ((tiny * sinc).double() / torch.sin(tiny.double()))[2:].sub(1).abs().max() < 1.2e-7
+
+
+def test_the_direct_bounds_hold_float32_pi_and_the_polynomials_range():
+    # float32's pi (8.7e-8 above pi) is an Euler angle atan2 returns: it takes the direct polynomial
+    assert torch.tensor(math.pi, dtype=F32).item() <= _polynomials.DIRECT_EULER_ANGLES
+    # the half angle of a rotation vector with every entry at the bound: within direct_cos_sinc's range
+    half = 3 ** 0.5 * _polynomials.DIRECT_ROTATION_VECTOR_ENTRIES / 2
+    assert math.pi < half <= 1.0005 * math.pi
+    assert _polynomials.DIRECT_EULER_ANGLES / 2 <= 1.0005 * math.pi / 2
+
+
 def _trig_calls(fn, *inputs) -> int:
     """How many ``torch.cos`` and ``torch.sin`` calls dynamo's graph of ``fn`` on ``inputs`` makes."""
     targets = traced_targets(fn, *inputs)
@@ -66,8 +102,18 @@ def _trig_calls(fn, *inputs) -> int:
 def test_the_polynomial_is_taken_only_in_marked_float32_cpu_graphs_without_a_gradient():
     x = torch.randn(8)
     assert _trig_calls(_polynomials.cos_sin_up_to_sign, x) == 2  # a user's own compiled code: torch's
-    _polynomials.KERNEL_CALL.polynomial_sincos = True  # (as the dispatcher sets it for angles in range)
+    # (as the dispatcher sets it for angles in the direct bound: no reduction either)
+    _polynomials.KERNEL_CALL.polynomial_sincos = _polynomials.SINCOS_DIRECT
     try:
+        targets = traced_targets(_polynomials.cos_sin_up_to_sign, x)
+        assert torch.cos not in targets and torch.sin not in targets and torch.round not in targets
+        assert traced_targets(_polynomials.cos_sinc_of_squares, x * x) != []  # its polynomials
+    finally:
+        _polynomials.KERNEL_CALL.polynomial_sincos = _polynomials.SINCOS_TORCH
+    assert _polynomials.cos_sinc_of_squares(x * x) is None  # eager: the caller's own forms
+    _polynomials.KERNEL_CALL.polynomial_sincos = _polynomials.SINCOS_REDUCED  # (for angles in the range)
+    try:
+        assert torch.round in traced_targets(_polynomials.cos_sin_up_to_sign, x)
         assert _trig_calls(_polynomials.cos_sin_up_to_sign, x) == 0
         assert _trig_calls(_polynomials.cos_sin_up_to_sign, x.double()) == 2  # float64: torch's
         leaf = x.clone().requires_grad_()
@@ -75,7 +121,7 @@ def test_the_polynomial_is_taken_only_in_marked_float32_cpu_graphs_without_a_gra
         with torch.no_grad():
             assert _trig_calls(_polynomials.cos_sin_up_to_sign, leaf) == 0
     finally:
-        _polynomials.KERNEL_CALL.polynomial_sincos = False
+        _polynomials.KERNEL_CALL.polynomial_sincos = _polynomials.SINCOS_TORCH
     # eager: torch's, bit for bit
     c, s = _polynomials.cos_sin_up_to_sign(x)
     assert torch.equal(c, torch.cos(x)) and torch.equal(s, torch.sin(x))
@@ -84,11 +130,12 @@ def test_the_polynomial_is_taken_only_in_marked_float32_cpu_graphs_without_a_gra
 def test_the_dispatcher_takes_the_polynomial_only_for_angles_within_its_range(compiled, monkeypatch):
     import torchquat._dispatch as dispatch
 
-    graphs = []
+    graphs, reductions = [], []
 
     def backend(gm, example_inputs):
         targets = [node.target for node in gm.graph.nodes if node.op == "call_function"]
         graphs.append(targets.count(torch.cos) + targets.count(torch.sin))
+        reductions.append(targets.count(torch.round))  # (the reduced polynomial's k = round(2x / pi))
         return gm.forward
 
     monkeypatch.setattr(dispatch, "_backend", backend)
@@ -103,11 +150,25 @@ def test_the_dispatcher_takes_the_polynomial_only_for_angles_within_its_range(co
         return graphs[before:]  # (the graph traced by this call, if any)
 
     with torch.no_grad():
-        assert trig_calls(lambda: tq.euler_to_quat(angles, "ZYX")) == [0]
-        assert trig_calls(lambda: tq.axis_angle_to_matrix(angles)) == [0]
-        edge = angles.clone()
-        edge[5, 1] = -bound  # (the range's edge is in it)
-        assert trig_calls(lambda: tq.euler_to_quat(edge, "ZYX")) == []  # the same graph
+        # within pi (and float32's pi itself): the direct polynomials, no reduction
+        direct = angles.clone()
+        direct[3] = torch.tensor([math.pi, -math.pi, _polynomials.DIRECT_EULER_ANGLES])
+        assert trig_calls(lambda: tq.euler_to_quat(direct, "ZYX")) == [0] and reductions[-1] == 0
+        assert trig_calls(lambda: tq.euler_to_quat(angles, "ZYX")) == []  # the same graph
+        assert trig_calls(lambda: tq.axis_angle_to_matrix(angles)) == [0] and reductions[-1] == 0
+        # rotation vectors' entries within 2 pi / sqrt(3): direct (their half angle within pi)
+        vectors = angles.clone()
+        vectors[9] = _polynomials.DIRECT_ROTATION_VECTOR_ENTRIES
+        assert trig_calls(lambda: tq.axis_angle_to_matrix(vectors)) == []
+        # past the direct bounds (within the reduced range): the reduced polynomial, its graph once
+        wide = angles.clone()
+        wide[5, 1] = -bound  # (the range's edge is in it)
+        assert trig_calls(lambda: tq.euler_to_quat(wide, "ZYX")) == [0] and reductions[-1] > 0
+        wide[5, 1] = -_polynomials.DIRECT_EULER_ANGLES * 1.0001
+        assert trig_calls(lambda: tq.euler_to_quat(wide, "ZYX")) == []  # the same graph
+        vectors[9, 2] *= 1.0001
+        assert trig_calls(lambda: tq.axis_angle_to_matrix(vectors)) == [0] and reductions[-1] > 0
+        edge = wide
         for outside in (bound * 1.001, math.nan, math.inf):
             beyond = angles.clone()
             beyond[7, 2] = outside
@@ -139,7 +200,15 @@ def test_compiled_float32_rotations_without_a_gradient_match_float64_in_and_beyo
     # 2^20 rad on one axis (a norm float32 computes exactly): the three-part reduction is 0.03 off
     # at 1e6, so these batches must take torch's cos and sin
     beyond[::8] = torch.tensor([2.0 ** 20, 0.0, 0.0])
-    batches = [singular()[0].to(F32), generic()[0].to(F32), _big_batch(), _big_batch(200, bound, seed=5), beyond]
+    # the direct polynomials' edge: every angle, or every entry of a rotation vector, at the bound
+    # (a vector's half angle 1.0005 pi), both signs, and the largest float32 within it
+    top = _polynomials.DIRECT_ROTATION_VECTOR_ENTRIES if name.startswith("axis_angle") else _polynomials.DIRECT_EULER_ANGLES
+    top = torch.tensor(top, dtype=F64).to(F32)
+    top = torch.where(top.double() > (_polynomials.DIRECT_ROTATION_VECTOR_ENTRIES if name.startswith("axis_angle")
+                                      else _polynomials.DIRECT_EULER_ANGLES), torch.nextafter(top, torch.zeros(())), top)
+    signs = torch.tensor([[1.0, 1.0, 1.0], [-1.0, 1.0, -1.0], [1.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
+    at_the_bound = torch.cat([signs * top, _big_batch(200, 1.0, seed=6) * top])
+    batches = [singular()[0].to(F32), generic()[0].to(F32), at_the_bound, _big_batch(), _big_batch(200, bound, seed=5), beyond]
     for x in batches:
         with torch.no_grad():
             out = fn(x)

@@ -162,16 +162,19 @@ def _run_blocked(fn: Callable, tensors: Tuple[Tensor, ...], row_dims: Tuple[int,
     return out.view(batch + out.shape[1:])
 
 
-def _within_sincos_range(t: Tensor, context: Tuple) -> bool:
-    """Whether a compiled call may take the polynomial cos and sin: float32 on the CPU, no gradient
-    recorded, every entry of ``t`` (angles, or a rotation vector's components) within
-    ``_polynomials.POLYNOMIAL_SINCOS_RANGE`` of 0 (NaN and infinities are not). Reads one flag from the CPU,
-    where that waits on nothing."""
+def _sincos_mode(t: Tensor, context: Tuple, direct_bound: float) -> int:
+    """Which cos and sin a compiled call takes (``_polynomials.SINCOS_*``): torch's, unless it is
+    float32 on the CPU with no gradient recorded and every entry of ``t`` (angles, or a rotation
+    vector's components) lies within ``_polynomials.POLYNOMIAL_SINCOS_RANGE`` of 0 (NaN and
+    infinities do not); then the direct polynomials if every entry lies within ``direct_bound``,
+    else the reduced ones. Reads two flags from the CPU, where that waits on nothing."""
     if context[0] or context[2] != torch.float32 or not t.is_cpu or t.numel() == 0:
-        return False
+        return _polynomials.SINCOS_TORCH
     low, high = torch.aminmax(t)
     bound = _polynomials.POLYNOMIAL_SINCOS_RANGE
-    return bool((high <= bound) & (low >= -bound))
+    if not bool((high <= bound) & (low >= -bound)):
+        return _polynomials.SINCOS_TORCH
+    return _polynomials.SINCOS_DIRECT if bool((high <= direct_bound) & (low >= -direct_bound)) else _polynomials.SINCOS_REDUCED
 
 
 # Multiplies every kernel's ``compiled_from_rows`` (tests set 0 to compile every batch size).
@@ -284,7 +287,7 @@ class _FirstOrder(torch.autograd.Function):
 
 
 def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[int, ...]] = None,
-           compiled_from_rows: int = 0, polynomial_atan2: bool = False, polynomial_sincos: bool = False,
+           compiled_from_rows: int = 0, polynomial_atan2: bool = False, polynomial_sincos: float = 0.0,
            one_row: Optional[_one_row.OneRow] = None) -> Callable:
     """Mark an unchecked kernel ``fn(*tensors, **static_options)`` as compilable.
 
@@ -304,11 +307,13 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
     ``atan2`` by ``_polynomials.polynomial_atan2`` (compiled with the inductor option that keeps their
     compile time in bounds); nowhere else.
 
-    ``polynomial_sincos``: the same for ``_polynomials.cos_sin_up_to_sign`` (``_polynomials.polynomial_cos_sin``),
-    in calls whose first input's entries all lie within ``_polynomials.POLYNOMIAL_SINCOS_RANGE`` (one
-    ``aminmax``: 0.6 ms per 1e6 rows of 3, where the polynomial saves 0.5-1 ms for rotation vectors
-    and about 3 for Euler angles); other calls take a graph of their own with ``torch.cos`` and
-    ``torch.sin``.
+    ``polynomial_sincos`` (a bound in radians, 0 for none): the same for the half angles' cos and
+    sin (``_polynomials.cos_sin_up_to_sign``, ``cos_sinc_of_squares``), in calls whose first input's
+    entries all lie within ``_polynomials.POLYNOMIAL_SINCOS_RANGE`` (one ``aminmax``: 0.6 ms per 1e6
+    rows of 3, where the polynomial saves 0.5-1 ms for rotation vectors and about 3 for Euler
+    angles): the polynomials without a range reduction (``_polynomials.half_cos_sinc``) where they
+    all lie within the bound, the reduced ones (``polynomial_cos_sin``) elsewhere; other calls take
+    a graph of their own with ``torch.cos`` and ``torch.sin``.
 
     ``one_row`` (a :class:`torchquat._one_row.OneRow`): the kernel's formulas in Python floats, which
     a call on one CPU row takes, with one autograd node of its own where a graph is recorded (see
@@ -341,7 +346,7 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
             # the call runs eagerly instead of failing (fullgraph=True makes the limit an error).
             context = (torch.is_grad_enabled() and any(t.requires_grad for t in tensors),
                        torch.is_inference_mode_enabled(), tensors[0].dtype)
-            sincos = polynomial_sincos and _within_sincos_range(tensors[0], context)
+            sincos = _sincos_mode(tensors[0], context, polynomial_sincos) if polynomial_sincos else 0
             if polynomial_sincos:  # (a graph for each answer: the trace reads it as a constant)
                 context += (sincos,)
             compiled = _compiled_for(fn, tuple(sorted(static.items())), context,
@@ -350,7 +355,7 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
                 if polynomial_atan2:  # (read only if this call traces; other kernels leave it alone)
                     _polynomials.KERNEL_CALL.polynomial_atan2 = True
                 if sincos:
-                    _polynomials.KERNEL_CALL.polynomial_sincos = True
+                    _polynomials.KERNEL_CALL.polynomial_sincos = sincos
                 try:
                     if context[0]:
                         return _first_order_only(compiled(*tensors), tensors)
@@ -363,7 +368,7 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
                     if polynomial_atan2:
                         _polynomials.KERNEL_CALL.polynomial_atan2 = False
                     if sincos:
-                        _polynomials.KERNEL_CALL.polynomial_sincos = False
+                        _polynomials.KERNEL_CALL.polynomial_sincos = _polynomials.SINCOS_TORCH
             elif _set_stance is not None:  # its graphs still serve the layouts they were made for;
                 # a new one runs eagerly at once (no guard failure, recompile attempt and warning a call)
                 with _set_stance("eager_on_recompile"):

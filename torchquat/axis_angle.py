@@ -14,7 +14,7 @@ from ._dispatch import kernel
 from ._one_row import OneRow
 from ._math import (HALF_IDENTITY, constant, contract, is_small, outer_product, small_angle_threshold,
                     sum_of_products, sum_of_squares)
-from ._polynomials import atan2, cos_sin_up_to_sign
+from ._polynomials import DIRECT_ROTATION_VECTOR_ENTRIES, atan2, cos_sin_up_to_sign, cos_sinc_of_squares
 from ._planes import columns, plane_buffer, rows, slot
 from ._validation import prepare, restore
 from .matrix import HOMOGENEOUS, matrix_to_quat_unchecked, quat_to_matrix_unchecked
@@ -92,7 +92,7 @@ def _axis_angle_to_quat_with_jacobian(v: Tensor):
 _AXIS_ANGLE_TO_QUAT = jacobian_rule(_axis_angle_to_quat_small, _axis_angle_to_quat_with_jacobian, _axis_angle_to_quat_values)
 
 
-@kernel(blocked_row_dims=(1,), compiled_from_rows=1_024, polynomial_sincos=True,
+@kernel(blocked_row_dims=(1,), compiled_from_rows=1_024, polynomial_sincos=DIRECT_ROTATION_VECTOR_ENTRIES,
         one_row=OneRow("axis_angle_to_quat", (3,), (4,)))
 def axis_angle_to_quat_unchecked(v: Tensor) -> Tensor:
     # Up to 1,024 rows one closed-form node on the table path; above, its broadcast (..., 3, 4)
@@ -214,7 +214,10 @@ def _axis_angle_to_quat_columnwise_parts(v: Tensor, for_autograd: bool = False, 
     may be the output rows' own memory (``_planes.plane_buffer``)."""
     h = columns(v, HALF_IDENTITY[3], "half3")  # v / 2: its norm is the half angle
     x2 = sum_of_squares(h)
-    if for_autograd:
+    direct = cos_sinc_of_squares(x2) if for_autograd else None  # (compiled float32, no gradient, x <= pi)
+    if direct is not None:
+        cos_half, sinc = direct
+    elif for_autograd:
         small = x2 < small_angle_threshold(v.dtype) * 0.25  # (theta^2 = 4 x^2)
         x = torch.sqrt(torch.where(small, 1.0, x2))
         # (cos x, sin x) up to a common sign in the compiled float32 kernels: sign below undoes it
@@ -358,7 +361,7 @@ _AXIS_ANGLE_TO_MATRIX = jacobian_rule(_axis_angle_to_matrix_small, _axis_angle_t
                                       lambda v: _rotation_form(_half_turn_quat(v)))  # (R is even in q)
 
 
-@kernel(blocked_row_dims=(1,), compiled_from_rows=512, polynomial_sincos=True,
+@kernel(blocked_row_dims=(1,), compiled_from_rows=512, polynomial_sincos=DIRECT_ROTATION_VECTOR_ENTRIES,
         one_row=OneRow("axis_angle_to_matrix", (3,), (3, 3)))
 def axis_angle_to_matrix_unchecked(v: Tensor) -> Tensor:
     # Through the quaternion, where Rodrigues' formula written out is about 50 eager operations:
