@@ -241,3 +241,38 @@ def test_closed_forms_run_under_autograds_batched_gradients(name):
     fn = BATCHED_GRADS[name]
     assert torch.allclose(torch.autograd.functional.jacobian(fn, q.detach(), vectorize=True),
                           torch.autograd.functional.jacobian(fn, q.detach(), vectorize=False), atol=1e-13, rtol=0)
+
+
+def _node_names(node, seen=None) -> set:
+    """The class names of the autograd nodes of a graph."""
+    seen = set() if seen is None else seen
+    if node is not None and node not in seen:
+        seen.add(node)
+        for child, _ in node.next_functions:
+            _node_names(child, seen)
+    return {type(n).__name__ for n in seen}
+
+
+@pytest.mark.parametrize("rows", [3, 2_048], ids=["closed-form", "columns"])
+@pytest.mark.parametrize("name", sorted(BATCHED_GRADS))
+def test_compiled_autograd_traces_the_closed_form_backward_whole(name, rows):
+    # torch.compile's compiled autograd traces the nodes' Python backward: the same gradients, and
+    # no graph break (the legacy-vmap test, a pybind function dynamo cannot trace, broke every graph)
+    from torch._dynamo import compiled_autograd
+    from torch._dynamo.utils import counters
+
+    fn = BATCHED_GRADS[name]
+    q = uniform(rows, seed=16).requires_grad_()
+    weights = torch.linspace(0.5, 1.5, q.shape[0], dtype=q.dtype)
+    out = fn(q)
+    (expected,) = torch.autograd.grad((out.flatten(1).sum(-1) * weights).sum() if out.dim() > 1 else (out * weights).sum(), q)
+    torch._dynamo.reset()
+    counters.clear()
+    out = fn(q)
+    # (a few rows: one closed-form node; 2,048: the columns' closed forms, or autograd's own nodes for
+    # the kernels whose float64 columns record plain operations there)
+    assert rows > 3 or "_ClosedFormBackward" in _node_names(out.grad_fn)
+    with compiled_autograd._enable(lambda gm: torch.compile(gm, backend="eager")):
+        ((out.flatten(1).sum(-1) * weights).sum() if out.dim() > 1 else (out * weights).sum()).backward()
+    assert sum(counters["graph_break"].values()) == 0, dict(counters["graph_break"])
+    torch.testing.assert_close(q.grad, expected, rtol=1e-12, atol=1e-12)

@@ -103,7 +103,9 @@ class _ClosedForm(torch.autograd.Function):
         inputs, saved = tensors[:ctx.n_inputs], tensors[ctx.n_inputs:]
         wanted = ctx.needs_input_grad[2:]
         create_graph = torch.is_grad_enabled()
-        if create_graph or _legacy_batched(grad):
+        # (compiled autograd traces this backward: a legacy-batched gradient never reaches a trace,
+        # and dynamo cannot trace the test, a graph break in every backward graph)
+        if create_graph or (not torch.compiler.is_compiling() and _legacy_batched(grad)):
             # A graph of the gradient was asked for, or the gradient is batched by autograd's
             # is_grads_batched (jacobian(vectorize=True)), whose legacy vmap has no batching rule
             # for the closed forms' out= writes and broadcasts: differentiate the plain forward,
