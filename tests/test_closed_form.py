@@ -276,3 +276,22 @@ def test_compiled_autograd_traces_the_closed_form_backward_whole(name, rows):
         ((out.flatten(1).sum(-1) * weights).sum() if out.dim() > 1 else (out * weights).sum()).backward()
     assert sum(counters["graph_break"].values()) == 0, dict(counters["graph_break"])
     torch.testing.assert_close(q.grad, expected, rtol=1e-12, atol=1e-12)
+
+
+def test_compiled_autograd_traces_the_compiled_kernels_backward_hooks_whole(compiled):
+    # with the compiled kernels on, their node's hooks (the batched-gradients check) and the
+    # first-order node's backward are traced too
+    from torch._dynamo import compiled_autograd
+    from torch._dynamo.utils import counters
+
+    fn = tq.quat_to_matrix  # (the quickest to compile)
+    q = uniform(64, seed=17).requires_grad_()
+    weights = torch.linspace(0.5, 1.5, 9, dtype=q.dtype).reshape(3, 3)
+    (expected,) = torch.autograd.grad((fn(q) * weights).sum(), q)
+    out = fn(q)
+    assert "CompiledFunctionBackward" in _node_names(out.grad_fn)
+    counters.clear()
+    with compiled_autograd._enable(lambda gm: torch.compile(gm, backend="eager")):
+        (out * weights).sum().backward()
+    assert sum(counters["graph_break"].values()) == 0, dict(counters["graph_break"])
+    torch.testing.assert_close(q.grad, expected, rtol=1e-12, atol=1e-12)

@@ -60,7 +60,14 @@ def autocast_device(x: Tensor) -> Optional[str]:
     return None
 
 
-_legacy_batched = getattr(torch._C._functorch, "is_legacy_batchedtensor", lambda x: False)
+_is_legacy_batched = getattr(torch._C._functorch, "is_legacy_batchedtensor", lambda x: False)
+
+
+def _legacy_batched(grad: Tensor) -> bool:
+    """Whether ``grad`` is one of autograd's batched gradients (``is_grads_batched``, legacy vmap).
+    False in code that compiled autograd traces: no such gradient reaches a trace, and dynamo
+    cannot trace the test (a pybind function: a graph break in every backward graph)."""
+    return not torch.compiler.is_compiling() and _is_legacy_batched(grad)
 
 
 _functorch_active = torch._C._are_functorch_transforms_active
@@ -103,9 +110,7 @@ class _ClosedForm(torch.autograd.Function):
         inputs, saved = tensors[:ctx.n_inputs], tensors[ctx.n_inputs:]
         wanted = ctx.needs_input_grad[2:]
         create_graph = torch.is_grad_enabled()
-        # (compiled autograd traces this backward: a legacy-batched gradient never reaches a trace,
-        # and dynamo cannot trace the test, a graph break in every backward graph)
-        if create_graph or (not torch.compiler.is_compiling() and _legacy_batched(grad)):
+        if create_graph or _legacy_batched(grad):
             # A graph of the gradient was asked for, or the gradient is batched by autograd's
             # is_grads_batched (jacobian(vectorize=True)), whose legacy vmap has no batching rule
             # for the closed forms' out= writes and broadcasts: differentiate the plain forward,
