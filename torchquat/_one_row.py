@@ -38,7 +38,7 @@ import numpy
 import torch
 from torch import Tensor
 
-from ._closed_form import _legacy_batched, _transformed
+from ._closed_form import _is_legacy_batched, _transformed
 
 # On by default; TORCHQUAT_ONE_ROW=0 (or setting this to False) leaves one row to the tensor kernels.
 ENABLED = os.environ.get("TORCHQUAT_ONE_ROW", "1").lower() not in ("0", "false", "no", "off")
@@ -195,7 +195,8 @@ class _OneRowGradient(torch.autograd.Function):
         _, vjp, kernel, static, numpy_dtype, out_size, shapes = ctx.plan
         wanted = ctx.needs_input_grad[1:]
         create_graph = _grad_enabled()
-        if _is_compiling() and not create_graph:
+        compiling = _is_compiling()
+        if compiling and not create_graph:
             # compiled autograd traces this backward: reading the traced gradient's numbers would
             # specialise the graph on them (dynamo then fails its own guard). The formulas'
             # Jacobian, from the vector-Jacobian product of each unit vector, is a constant of the
@@ -204,7 +205,7 @@ class _OneRowGradient(torch.autograd.Function):
             flat = grad.reshape(1, out_size)
             return (None, *[(flat @ torch.tensor([row[k] for row in rows], dtype=grad.dtype)).reshape(shape)
                             if w else None for k, (shape, w) in enumerate(zip(shapes, wanted))])
-        if create_graph or _legacy_batched(grad) or type(grad) is not Tensor:
+        if create_graph or (not compiling and _is_legacy_batched(grad)) or type(grad) is not Tensor:
             # A graph of the gradient (double backward), or autograd's batched gradients: the
             # tensor kernel's own derivative, of views of the inputs (as _closed_form does)
             with torch.enable_grad():
