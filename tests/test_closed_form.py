@@ -264,8 +264,11 @@ def test_compiled_autograd_traces_the_closed_form_backward_whole(name, rows):
     fn = BATCHED_GRADS[name]
     q = uniform(rows, seed=16).requires_grad_()
     weights = torch.linspace(0.5, 1.5, q.shape[0], dtype=q.dtype)
-    out = fn(q)
-    (expected,) = torch.autograd.grad((out.flatten(1).sum(-1) * weights).sum() if out.dim() > 1 else (out * weights).sum(), q)
+
+    def loss(out):
+        return ((out.flatten(1).sum(-1) if out.dim() > 1 else out) * weights).sum()
+
+    (expected,) = torch.autograd.grad(loss(fn(q)), q)
     torch._dynamo.reset()
     counters.clear()
     out = fn(q)
@@ -273,7 +276,7 @@ def test_compiled_autograd_traces_the_closed_form_backward_whole(name, rows):
     # the kernels whose float64 columns record plain operations there)
     assert rows > 3 or "_ClosedFormBackward" in _node_names(out.grad_fn)
     with compiled_autograd._enable(lambda gm: torch.compile(gm, backend="eager")):
-        ((out.flatten(1).sum(-1) * weights).sum() if out.dim() > 1 else (out * weights).sum()).backward()
+        loss(out).backward()
     assert sum(counters["graph_break"].values()) == 0, dict(counters["graph_break"])
     torch.testing.assert_close(q.grad, expected, rtol=1e-12, atol=1e-12)
 

@@ -67,8 +67,10 @@ def test_the_direct_polynomials_are_cos_and_sin_over_their_ranges():
     g = torch.Generator().manual_seed(1)
     # half_cos_sinc: y up to 1.0005 pi / 2 (the direct Euler bound's half angle); direct_cos_sinc: x up to
     # 1.0005 pi (a rotation vector's half angle for entries within the direct bound), both signs
-    for fn, top, cos_bound, sin_bound in ((_polynomials.half_cos_sinc, _polynomials.DIRECT_EULER_ANGLES / 2, 1e-7, 2.2e-7),
-                                          (_polynomials.direct_cos_sinc, _polynomials.DIRECT_ROTATION_VECTOR_ENTRIES * 3 ** 0.5 / 2, 3.8e-7, 2.8e-7)):
+    half_euler = _polynomials.DIRECT_EULER_ANGLES / 2
+    half_vector = _polynomials.DIRECT_ROTATION_VECTOR_ENTRIES * 3 ** 0.5 / 2
+    for fn, top, cos_bound, sin_bound in ((_polynomials.half_cos_sinc, half_euler, 1e-7, 2.2e-7),
+                                          (_polynomials.direct_cos_sinc, half_vector, 3.8e-7, 2.8e-7)):
         x = torch.cat([torch.rand(1_000_000, generator=g, dtype=F64) * 2 - 1,
                        torch.linspace(-1, 1, 200_001, dtype=F64)]).mul(top).to(F32)
         assert x.abs().max() <= top * (1 + 2 ** -23)
@@ -202,13 +204,14 @@ def test_compiled_float32_rotations_without_a_gradient_match_float64_in_and_beyo
     beyond[::8] = torch.tensor([2.0 ** 20, 0.0, 0.0])
     # the direct polynomials' edge: every angle, or every entry of a rotation vector, at the bound
     # (a vector's half angle 1.0005 pi), both signs, and the largest float32 within it
-    top = _polynomials.DIRECT_ROTATION_VECTOR_ENTRIES if name.startswith("axis_angle") else _polynomials.DIRECT_EULER_ANGLES
-    top = torch.tensor(top, dtype=F64).to(F32)
-    top = torch.where(top.double() > (_polynomials.DIRECT_ROTATION_VECTOR_ENTRIES if name.startswith("axis_angle")
-                                      else _polynomials.DIRECT_EULER_ANGLES), torch.nextafter(top, torch.zeros(())), top)
+    direct_bound = (_polynomials.DIRECT_ROTATION_VECTOR_ENTRIES if name.startswith("axis_angle")
+                    else _polynomials.DIRECT_EULER_ANGLES)
+    top = torch.tensor(direct_bound, dtype=F64).to(F32)
+    top = torch.where(top.double() > direct_bound, torch.nextafter(top, torch.zeros(())), top)
     signs = torch.tensor([[1.0, 1.0, 1.0], [-1.0, 1.0, -1.0], [1.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
     at_the_bound = torch.cat([signs * top, _big_batch(200, 1.0, seed=6) * top])
-    batches = [singular()[0].to(F32), generic()[0].to(F32), at_the_bound, _big_batch(), _big_batch(200, bound, seed=5), beyond]
+    batches = [singular()[0].to(F32), generic()[0].to(F32), at_the_bound, _big_batch(),
+               _big_batch(200, bound, seed=5), beyond]
     for x in batches:
         with torch.no_grad():
             out = fn(x)

@@ -174,7 +174,9 @@ def _sincos_mode(t: Tensor, context: Tuple, direct_bound: float) -> int:
     bound = _polynomials.POLYNOMIAL_SINCOS_RANGE
     if not bool((high <= bound) & (low >= -bound)):
         return _polynomials.SINCOS_TORCH
-    return _polynomials.SINCOS_DIRECT if bool((high <= direct_bound) & (low >= -direct_bound)) else _polynomials.SINCOS_REDUCED
+    if bool((high <= direct_bound) & (low >= -direct_bound)):
+        return _polynomials.SINCOS_DIRECT
+    return _polynomials.SINCOS_REDUCED
 
 
 # Multiplies every kernel's ``compiled_from_rows`` (tests set 0 to compile every batch size).
@@ -346,7 +348,8 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
             # the call runs eagerly instead of failing (fullgraph=True makes the limit an error).
             context = (torch.is_grad_enabled() and any(t.requires_grad for t in tensors),
                        torch.is_inference_mode_enabled(), tensors[0].dtype)
-            sincos = _sincos_mode(tensors[0], context, polynomial_sincos) if polynomial_sincos else 0
+            sincos = (_sincos_mode(tensors[0], context, polynomial_sincos) if polynomial_sincos
+                      else _polynomials.SINCOS_TORCH)
             if polynomial_sincos:  # (a graph for each answer: the trace reads it as a constant)
                 context += (sincos,)
             compiled = _compiled_for(fn, tuple(sorted(static.items())), context,

@@ -183,8 +183,8 @@ _HALF_COS_POLYNOMIAL = (-0.4999999954731587, 0.04166664062504585, -0.00138884020
 _HALF_SINC_POLYNOMIAL = (-0.16666660437726408, 0.008333087439247563, -0.0001981105333743352,
                          2.6087893664743927e-06)
 # Where the dispatcher takes them, on a kernel's input entries (radians; the fits reach 1.0005 pi / 2,
-# so float32's pi, 8.7e-8 above pi, is in): Euler angles, whose half angles :func:`half_cos_sinc`
-# takes, and rotation vectors, whose half angle |v| / 2 <= sqrt(3) max |v_i| / 2 :func:`direct_cos_sinc` takes.
+# so float32's pi, 8.7e-8 above pi, is in): Euler angles, whose half angles half_cos_sinc takes, and
+# rotation vectors, whose half angle |v| / 2 <= sqrt(3) max |v_i| / 2 direct_cos_sinc takes.
 DIRECT_EULER_ANGLES = 1.0005 * math.pi
 DIRECT_ROTATION_VECTOR_ENTRIES = 1.0005 * 2.0 * math.pi / math.sqrt(3.0)
 # KERNEL_CALL.polynomial_sincos: which cos and sin a marked kernel's call takes
@@ -227,7 +227,7 @@ def direct_cos_sinc(u: Tensor):
         >>> torch.allclose(c, torch.cos(x)) and torch.allclose(sinc * x, torch.sin(x))
         True
     """
-    zero, half, one = literal(_SINCOS_CONSTANTS)
+    half = literal(_SINCOS_CONSTANTS)[1]
     w = (half * half) * u
     c, r = half_cos_sinc(w)
     return c * c - w * (r * r), r * c
@@ -235,15 +235,16 @@ def direct_cos_sinc(u: Tensor):
 
 @_assume_constant_result
 def _in_polynomial_sincos_kernel() -> int:
-    """Which cos and sin this trace takes (:data:`SINCOS_TORCH`, :data:`SINCOS_REDUCED` where the
-    dispatcher found every angle within :data:`POLYNOMIAL_SINCOS_RANGE`, :data:`SINCOS_DIRECT`
-    within the kernel's direct bound, :data:`DIRECT_EULER_ANGLES` or
-    :data:`DIRECT_ROTATION_VECTOR_ENTRIES`); read at trace time, the
-    dispatcher keeps their graphs apart."""
+    """Which cos and sin this trace takes (:data:`SINCOS_TORCH`; :data:`SINCOS_REDUCED` where the
+    dispatcher found every angle within :data:`POLYNOMIAL_SINCOS_RANGE`; :data:`SINCOS_DIRECT` within
+    the kernel's direct bound, :data:`DIRECT_EULER_ANGLES` or :data:`DIRECT_ROTATION_VECTOR_ENTRIES`).
+    Read at trace time; the dispatcher keeps their graphs apart."""
     return getattr(KERNEL_CALL, "polynomial_sincos", SINCOS_TORCH)
 
 
 def _polynomial_sincos_mode(x: Tensor) -> int:
+    """The trace's :func:`_in_polynomial_sincos_kernel` for float32 CPU values that record no
+    gradient; :data:`SINCOS_TORCH` for any other (and eagerly)."""
     if (torch.compiler.is_compiling() and x.dtype == torch.float32 and x.is_cpu
             and not (torch.is_grad_enabled() and x.requires_grad)):
         return _in_polynomial_sincos_kernel()

@@ -39,7 +39,8 @@ from .matrix import quat_to_matrix_unchecked
 __all__ = ["euler_to_quat", "quat_to_euler", "euler_to_matrix", "matrix_to_euler", "euler_gimbal_lock"]
 
 
-@kernel(blocked_row_dims=(1,), compiled_from_rows=512, polynomial_sincos=DIRECT_EULER_ANGLES, one_row=OneRow("euler_to_quat", (3,), (4,)))
+@kernel(blocked_row_dims=(1,), compiled_from_rows=512, polynomial_sincos=DIRECT_EULER_ANGLES,
+        one_row=OneRow("euler_to_quat", (3,), (4,)))
 def euler_to_quat_unchecked(angles: Tensor, convention: EulerConvention) -> Tensor:
     # column by column from 513 rows, with its closed-form backward (forward+backward: 1.6x faster
     # than the tables at 1,024 rows, even at 512; the tables' forward leads by 10% up to ~1,500)
@@ -90,7 +91,8 @@ def euler_to_quat(angles: Tensor, convention: str, degrees: bool = False) -> Ten
     return restore(euler_to_quat_unchecked(to_radians(angles, check_degrees("euler_to_quat", degrees)), convention=conv), dtype)
 
 
-@kernel(blocked_row_dims=(1,), compiled_from_rows=256, polynomial_sincos=DIRECT_EULER_ANGLES, one_row=OneRow("euler_to_matrix", (3,), (3, 3)))
+@kernel(blocked_row_dims=(1,), compiled_from_rows=256, polynomial_sincos=DIRECT_EULER_ANGLES,
+        one_row=OneRow("euler_to_matrix", (3,), (3, 3)))
 def euler_to_matrix_unchecked(angles: Tensor, convention: EulerConvention) -> Tensor:
     if is_small(angles, 3, share=1 / 16, gpu_share=0.25):  # the 4-slot, 27-column outer product: pays up to ~250 rows
         return closed_form.apply(EULER_TO_MATRIX, angles, convention=convention)
