@@ -298,3 +298,23 @@ def test_compiled_autograd_traces_the_compiled_kernels_backward_hooks_whole(comp
         (out * weights).sum().backward()
     assert sum(counters["graph_break"].values()) == 0, dict(counters["graph_break"])
     torch.testing.assert_close(q.grad, expected, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("rows", [1, 3], ids=["one-row", "closed-form"])
+def test_compiled_autograd_keeps_second_derivatives(rows):
+    # a graph of the gradient asked for while compiled autograd is on: the same Hessian-vector product
+    from torch._dynamo import compiled_autograd
+
+    x = uniform(rows, seed=18).requires_grad_()
+
+    def second(x):
+        (g,) = torch.autograd.grad(tq.quat_to_euler(x, "ZYX").pow(2).sum(), x, create_graph=True)
+        return g, torch.autograd.grad(g.sum(), x)[0]
+
+    g_expected, h_expected = second(x)
+    torch._dynamo.reset()
+    with compiled_autograd._enable(lambda gm: torch.compile(gm, backend="eager")):
+        g, h = second(x)
+    torch.testing.assert_close(g, g_expected, rtol=1e-12, atol=1e-12)
+    torch.testing.assert_close(h, h_expected, rtol=1e-10, atol=1e-10)
+    assert h.abs().sum() > 0
