@@ -167,16 +167,14 @@ def _sincos_mode(t: Tensor, context: Tuple, direct_bound: float) -> int:
     float32 on the CPU with no gradient recorded and every entry of ``t`` (angles, or a rotation
     vector's components) lies within ``_polynomials.POLYNOMIAL_SINCOS_RANGE`` of 0 (NaN and
     infinities do not); then the direct polynomials if every entry lies within ``direct_bound``,
-    else the reduced ones. Reads two flags from the CPU, where that waits on nothing."""
+    else the reduced ones. Reads one number from the CPU, where that waits on nothing."""
     if context[0] or context[2] != torch.float32 or not t.is_cpu or t.numel() == 0:
         return _polynomials.SINCOS_TORCH
     low, high = torch.aminmax(t)
-    bound = _polynomials.POLYNOMIAL_SINCOS_RANGE
-    if not bool((high <= bound) & (low >= -bound)):
+    largest = float(torch.maximum(high, low.neg()))  # (NaN if any entry is: no comparison holds)
+    if not largest <= _polynomials.POLYNOMIAL_SINCOS_RANGE:
         return _polynomials.SINCOS_TORCH
-    if bool((high <= direct_bound) & (low >= -direct_bound)):
-        return _polynomials.SINCOS_DIRECT
-    return _polynomials.SINCOS_REDUCED
+    return _polynomials.SINCOS_DIRECT if largest <= direct_bound else _polynomials.SINCOS_REDUCED
 
 
 # Multiplies every kernel's ``compiled_from_rows`` (tests set 0 to compile every batch size).
