@@ -287,3 +287,27 @@ def test_mallopt_line_states_the_threshold_it_sets(monkeypatch):
     monkeypatch.delenv("GLIBC_TUNABLES", raising=False)
     line = timing.steady_allocator("mallopt")
     assert "2^31-1" in line and "2 GiB" in line and "equivalent" not in line
+
+
+def test_the_in_process_ab_tool_times_both_variants_in_turn(tmp_path, capsys):
+    # tools/ab_compiled.py (a developer's tool, not installed): each variant's setup runs before its
+    # compile and before each of its measurements, and the table has one row per op
+    from pathlib import Path
+    import runpy
+
+    tool = Path(__file__).resolve().parents[1] / "tools" / "ab_compiled.py"
+    variants = tmp_path / "variants.py"
+    log = tmp_path / "calls.txt"
+    variants.write_text(f"def first():\n    open({str(log)!r}, 'a').write('a')\n"
+                        f"def second():\n    open({str(log)!r}, 'a').write('b')\n"
+                        "VARIANTS = {'a': first, 'b': second}\n")
+    main = runpy.run_path(str(tool))["main"]
+    assert main([str(variants), "--ops", "quat_multiply", "--n", "2048", "--rounds", "2",
+                 "--min-run-time", "0.001"]) == 0
+    out = capsys.readouterr().out
+    row = [line for line in out.splitlines() if line.startswith("| quat_multiply |")]
+    assert len(row) == 1 and float(row[0].split("|")[4]) > 0
+    assert log.read_text() == "ab" + "ab" + "ba"  # (the two compiles, then the rounds in alternating order)
+    with pytest.raises(SystemExit):  # (a variants file needs two entries)
+        variants.write_text("VARIANTS = {'a': lambda: None}\n")
+        main([str(variants), "--ops", "quat_multiply"])
