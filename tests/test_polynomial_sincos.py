@@ -170,7 +170,6 @@ def test_the_dispatcher_takes_the_polynomial_only_for_angles_within_its_range(co
         assert trig_calls(lambda: tq.euler_to_quat(wide, "ZYX")) == []  # the same graph
         vectors[9, 2] *= 1.0001
         assert trig_calls(lambda: tq.axis_angle_to_matrix(vectors)) == [0] and reductions[-1] > 0
-        edge = wide
         for outside in (bound * 1.001, math.nan, math.inf):
             beyond = angles.clone()
             beyond[7, 2] = outside
