@@ -207,3 +207,36 @@ def test_compiled_float32_distances_and_rotation_vectors_without_a_gradient_agre
         else:  # as rotations (a half turn's vector and its negative are one rotation)
             assert torch.allclose(tq.axis_angle_to_matrix(out), tq.axis_angle_to_matrix(ref), atol=2e-6)
             assert torch.linalg.vector_norm(out, dim=-1).max() <= math.pi * (1 + 1e-6)
+
+
+def _compiled_as_the_kernels_are(fn):
+    """``fn`` compiled with the options of the kernels' polynomial graphs: multiply-adds contracted
+    into fma where torch's inductor has that option (``_dispatch._polynomial_options``)."""
+    from torchquat import _dispatch
+
+    options = dict(_dispatch._polynomial_options(), **{"cpp.enable_tiling_heuristics": False})
+    return torch.compile(fn, dynamic=True, fullgraph=True, options=options)
+
+
+@pytest.mark.slow
+def test_the_polynomial_keeps_its_accuracy_and_special_values_with_contracted_multiply_adds():
+    from torchquat import _dispatch
+
+    name, value = _dispatch._CONTRACT_OPTION
+    if name not in _dispatch._polynomial_options():
+        pytest.skip("this torch's inductor has no option to contract multiply-adds")
+    assert _dispatch._polynomial_options()[name] == value
+    general = _compiled_as_the_kernels_are(lambda y, x: _polynomials.polynomial_atan2(y, x))
+    first_quadrant = _compiled_as_the_kernels_are(lambda y, x: _polynomials.polynomial_atan2(y, x, True, True))
+    y, x = _sweep(400_000, seed=4)
+    exact = torch.atan2(y.double(), x.double())
+    assert _ulps(general(y, x), exact).max() <= 2.0 and _ulps(general(y, x), exact).mean() < 0.5
+    exact_first = torch.atan2(y.abs().double(), x.abs().double())
+    assert _ulps(first_quadrant(y.abs(), x.abs()), exact_first).max() <= 2.0
+    values = torch.tensor([0.0, -0.0, 1.0, -1.0, math.inf, -math.inf, math.nan, 1e-40, -1e-40, 3e38, -3e38])
+    y, x = (t.flatten() for t in torch.meshgrid(values, values, indexing="ij"))
+    ours, expected = general(y, x), torch.atan2(y.double(), x.double()).to(F32)
+    assert torch.equal(ours.isnan(), expected.isnan())
+    finite = ~expected.isnan()
+    assert torch.equal(ours[finite], expected[finite])
+    assert torch.equal(torch.signbit(ours[finite]), torch.signbit(expected[finite]))

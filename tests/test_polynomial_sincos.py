@@ -226,3 +226,35 @@ def test_compiled_float32_rotations_without_a_gradient_match_float64_in_and_beyo
             off_axis = (x == 0).sum(-1) < 2
             tolerance = tolerance + off_axis * 3e-7 * torch.linalg.vector_norm(x.double(), dim=-1)
         assert torch.all(error <= tolerance), (x.abs().max(), (error - tolerance).max())
+
+
+@pytest.mark.slow
+def test_the_polynomials_keep_their_accuracy_with_contracted_multiply_adds():
+    # compiled as the kernels' polynomial graphs are: multiply-adds contracted into fma where torch's
+    # inductor has that option (_dispatch._polynomial_options); the bounds of the eager tests above
+    from torchquat import _dispatch
+
+    options = dict(_dispatch._polynomial_options(), **{"cpp.enable_tiling_heuristics": False})
+    if _dispatch._CONTRACT_OPTION[0] not in options:
+        pytest.skip("this torch's inductor has no option to contract multiply-adds")
+    compile_ = lambda fn: torch.compile(fn, dynamic=True, fullgraph=True, options=options)  # noqa: E731
+    reduced = compile_(_polynomials.polynomial_cos_sin)
+    half = compile_(lambda y: (lambda c, r: (c, y * r))(*_polynomials.half_cos_sinc(y * y)))
+    wide = compile_(lambda x: (lambda c, r: (c, x * r))(*_polynomials.direct_cos_sinc(x * x)))
+    g = torch.Generator().manual_seed(5)
+    x = ((torch.rand(400_000, generator=g, dtype=F64) * 2 - 1) * _polynomials.POLYNOMIAL_SINCOS_RANGE).to(F32)
+    c, s = reduced(x)
+    cos, sin = torch.cos(x.double()), torch.sin(x.double())
+    sigma = torch.sign(c.double() * cos + s.double() * sin)
+    assert torch.all(sigma.abs() == 1)
+    assert (sigma * c.double() - cos).abs().max() < 1.2e-7 and (sigma * s.double() - sin).abs().max() < 1.2e-7
+    for fn, top, cos_bound, sin_bound in ((half, _polynomials.DIRECT_EULER_ANGLES / 2, 1e-7, 2.2e-7),
+                                          (wide, _polynomials.DIRECT_ROTATION_VECTOR_ENTRIES * 3 ** 0.5 / 2, 3.8e-7, 2.8e-7)):
+        y = ((torch.rand(400_000, generator=g, dtype=F64) * 2 - 1) * top).to(F32)
+        cos_error, sin_error = _float64_errors(y, *fn(y))
+        assert cos_error.max() < cos_bound and sin_error.max() < sin_bound, (cos_error.max(), sin_error.max())
+        zeros = torch.tensor([0.0, -0.0])
+        c, s = fn(zeros)
+        assert c.tolist() == [1.0, 1.0] and torch.signbit(s).tolist() == [False, True]
+    c, s = reduced(torch.tensor([0.0, -0.0]))
+    assert c.tolist() == [1.0, 1.0] and torch.signbit(s).tolist() == [False, True]

@@ -126,9 +126,10 @@ def atan2(y: Tensor, x: Tensor, out=None, *, y_nonnegative: bool = False, x_nonn
 
 
 # cos and sin up to a common sign, for rotations built from half angles (a quaternion and its
-# negative are one rotation). Cody and Waite's reduction by pi/2 in three float32 parts, without
-# fma (inductor's CPU loops write none; Moshier's Cephes sinf.c split: k * 1.5703125 is exact for
-# |k| < 2^16), then Cephes' float32 polynomials on [-pi/4, pi/4] (minimax for float32).
+# negative are one rotation). Cody and Waite's reduction by pi/2 in three float32 parts, exact with
+# or without fma (the kernels' polynomial graphs contract multiply-adds, see _dispatch; Moshier's
+# Cephes sinf.c split: k * 1.5703125 is exact for |k| < 2^16), then Cephes' float32 polynomials on
+# [-pi/4, pi/4] (minimax for float32).
 _PI_2_PARTS = (2.0 / math.pi, 1.5703125, 4.837512969970703125e-4, 7.54978995489188216e-8)
 _SIN_POLYNOMIAL = (-1.6666654611e-1, 8.3321608736e-3, -1.9515295891e-4)  # sin r = r + r^3 P(r^2)
 _COS_POLYNOMIAL = (4.166664568298827e-2, -1.388731625493765e-3, 2.443315711809948e-5)  # 1 - r^2/2 + r^4 P(r^2)
@@ -194,8 +195,8 @@ SINCOS_TORCH, SINCOS_REDUCED, SINCOS_DIRECT = 0, 1, 2
 def half_cos_sinc(w: Tensor):
     """``(cos y, sin(y) / y)`` of ``y = sqrt(w)``, for ``0 <= w <= (pi / 2)^2``: the polynomials
     :data:`_HALF_COS_POLYNOMIAL` and :data:`_HALF_SINC_POLYNOMIAL` in ``w``, with no range reduction,
-    square root or quadrant's tests, each by Estrin's scheme (inductor's CPU loops write no fma, and
-    short chains overlap in a long loop body) with the leading terms ``1 - w / 2`` and ``1 - w / 6``
+    square root or quadrant's tests, each by Estrin's scheme (short chains overlap in a long loop
+    body, fma or not) with the leading terms ``1 - w / 2`` and ``1 - w / 6``
     rounded apart from the rest. Within 7.8e-8 of the exact cos and 2.1e-7 of the sin (``y`` times
     the ratio; mean errors 2e-8), ``cos 0 = 1`` and ``sin(y) / y = 1`` at 0 (so ``y`` times it keeps
     ``-0.0``).
