@@ -308,6 +308,14 @@ def test_the_in_process_ab_tool_times_both_variants_in_turn(tmp_path, capsys):
     row = [line for line in out.splitlines() if line.startswith("| quat_multiply |")]
     assert len(row) == 1 and float(row[0].split("|")[4]) > 0
     assert log.read_text() == "ab" + "ab" + "ba"  # (the two compiles, then the rounds in alternating order)
+    assert "float32 rows, forward," in out
+    # --backward: the training graphs, forward and torch.autograd.grad
+    assert main([str(variants), "--ops", "quat_multiply", "--n", "2048", "--rounds", "1",
+                 "--min-run-time", "0.001", "--backward"]) == 0
+    out = capsys.readouterr().out
+    assert "float32 rows, forward+backward," in out
+    row = [line for line in out.splitlines() if line.startswith("| quat_multiply |")]
+    assert len(row) == 1 and float(row[0].split("|")[4]) > 0
     with pytest.raises(SystemExit):  # (a variants file needs two entries)
         variants.write_text("VARIANTS = {'a': lambda: None}\n")
         main([str(variants), "--ops", "quat_multiply"])

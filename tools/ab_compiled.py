@@ -29,8 +29,10 @@ Run (steady allocator, as the bench does)::
     GLIBC_TUNABLES=glibc.malloc.mmap_max=0:glibc.malloc.trim_threshold=68719476736 \\
         python tools/ab_compiled.py variants.py --ops euler_to_quat_ZYX,axis_angle_to_quat --rounds 20
 
-Forward only, no gradient recorded, float32, one thread, inputs of ``torchquat.bench``. Prints the
-median and fastest time of each variant per op, and the ratio of the medians (second / first).
+Forward only with no gradient recorded (the graphs inference takes), or with ``--backward`` the
+forward and ``torch.autograd.grad`` with a fixed output gradient (the training graphs, as the bench's
+fwd+bwd cells); float32, one thread, inputs of ``torchquat.bench``. Prints the median and fastest time
+of each variant per op, and the ratio of the medians (second / first).
 """
 
 import argparse
@@ -46,6 +48,22 @@ from torchquat import _dispatch
 from torchquat.bench import ops as bench_ops
 
 
+def _call(fn, inputs, backward: bool):
+    """``(fn, inputs)`` to time: ``fn`` itself, or with ``backward`` a step that calls ``fn`` on leaves
+    that require a gradient and returns ``torch.autograd.grad`` of its output (a fixed random gradient)."""
+    if not backward:
+        return fn, inputs
+    leaves = tuple(t.detach().clone().requires_grad_() for t in inputs)
+    with torch.no_grad():  # (the output's shape, without compiling a graph for it)
+        shape = fn(*leaves).shape
+    grad = torch.randn(shape, generator=torch.Generator().manual_seed(0))
+
+    def step(*tensors):
+        return torch.autograd.grad(fn(*tensors), tensors, grad)
+
+    return step, leaves
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
     parser.add_argument("variants", help="a Python file that defines VARIANTS = {name: setup callable}")
@@ -55,6 +73,8 @@ def main(argv=None) -> int:
     parser.add_argument("--rounds", type=int, default=20, help="alternating rounds (default: %(default)s)")
     parser.add_argument("--min-run-time", type=float, default=0.3,
                         help="seconds of blocked_autorange per measurement (default: %(default)s)")
+    parser.add_argument("--backward", action="store_true",
+                        help="time the forward and its backward (torch.autograd.grad), not the forward alone")
     args = parser.parse_args(argv)
     variants = runpy.run_path(args.variants)["VARIANTS"]
     names = [name for name in args.ops.split(",") if name]
@@ -64,13 +84,14 @@ def main(argv=None) -> int:
                      "--rounds and --n at least 1")
     torch.set_num_threads(1)
     inputs = bench_ops.make_inputs(args.n, torch.float32)
-    calls = {name: (bench_ops.OPS_BY_NAME[name].tq_fn, tuple(inputs[k] for k in bench_ops.OPS_BY_NAME[name].args))
+    calls = {name: _call(bench_ops.OPS_BY_NAME[name].tq_fn, tuple(inputs[k] for k in bench_ops.OPS_BY_NAME[name].args),
+                         args.backward)
              for name in names}
     previous = (tq.compiled_kernels_enabled(), _dispatch._compiled)
     compiled = {}
     try:
         tq.use_compiled_kernels(True)
-        with torch.no_grad():
+        with torch.set_grad_enabled(args.backward):
             for variant, setup in variants.items():
                 setup()
                 _dispatch._compiled = {}
@@ -90,7 +111,8 @@ def main(argv=None) -> int:
         tq.use_compiled_kernels(previous[0])
         _dispatch._compiled = previous[1]
     first, second = order
-    print(f"{args.n:,} float32 rows, {args.rounds} rounds, medians over rounds (fastest round), ms")
+    print(f"{args.n:,} float32 rows, {'forward+backward' if args.backward else 'forward'}, {args.rounds} rounds, "
+          "medians over rounds (fastest round), ms")
     print(f"| op | {first} | {second} | {second} / {first} |")
     print("|---|---:|---:|---:|")
     for name in names:
