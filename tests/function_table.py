@@ -187,3 +187,15 @@ def traced_targets(fn, *inputs) -> list:
     torch._dynamo.reset()
     torch.compile(fn, backend=backend, fullgraph=True)(*inputs)
     return targets
+
+
+def compiled_as_the_polynomial_kernels_are(fn):
+    """``fn`` compiled with the options of the kernels' polynomial graphs (multiply-adds contracted
+    into fma where torch's inductor has that option: ``_dispatch._polynomial_options``), or ``None``
+    where this torch has no such option."""
+    from torchquat import _dispatch
+
+    options = dict(_dispatch._polynomial_options(), **{"cpp.enable_tiling_heuristics": False})
+    if _dispatch._CONTRACT_OPTION[0] not in options:
+        return None
+    return torch.compile(fn, dynamic=True, fullgraph=True, options=options)

@@ -8,7 +8,7 @@ import torch
 
 import torchquat as tq
 from torchquat import _math, _polynomials
-from function_table import ALL, traced_targets
+from function_table import ALL, compiled_as_the_polynomial_kernels_are, traced_targets
 
 F32 = torch.float32
 
@@ -209,25 +209,18 @@ def test_compiled_float32_distances_and_rotation_vectors_without_a_gradient_agre
             assert torch.linalg.vector_norm(out, dim=-1).max() <= math.pi * (1 + 1e-6)
 
 
-def _compiled_as_the_kernels_are(fn):
-    """``fn`` compiled with the options of the kernels' polynomial graphs: multiply-adds contracted
-    into fma where torch's inductor has that option (``_dispatch._polynomial_options``)."""
-    from torchquat import _dispatch
-
-    options = dict(_dispatch._polynomial_options(), **{"cpp.enable_tiling_heuristics": False})
-    return torch.compile(fn, dynamic=True, fullgraph=True, options=options)
-
 
 @pytest.mark.slow
 def test_the_polynomial_keeps_its_accuracy_and_special_values_with_contracted_multiply_adds():
     from torchquat import _dispatch
 
-    name, value = _dispatch._CONTRACT_OPTION
-    if name not in _dispatch._polynomial_options():
+    general = compiled_as_the_polynomial_kernels_are(lambda y, x: _polynomials.polynomial_atan2(y, x))
+    if general is None:
         pytest.skip("this torch's inductor has no option to contract multiply-adds")
+    name, value = _dispatch._CONTRACT_OPTION
     assert _dispatch._polynomial_options()[name] == value
-    general = _compiled_as_the_kernels_are(lambda y, x: _polynomials.polynomial_atan2(y, x))
-    first_quadrant = _compiled_as_the_kernels_are(lambda y, x: _polynomials.polynomial_atan2(y, x, True, True))
+    first_quadrant = compiled_as_the_polynomial_kernels_are(
+        lambda y, x: _polynomials.polynomial_atan2(y, x, True, True))
     y, x = _sweep(400_000, seed=4)
     exact = torch.atan2(y.double(), x.double())
     assert _ulps(general(y, x), exact).max() <= 2.0 and _ulps(general(y, x), exact).mean() < 0.5

@@ -11,7 +11,7 @@ import torch
 
 import torchquat as tq
 from torchquat import _polynomials
-from function_table import ALL, traced_targets
+from function_table import ALL, compiled_as_the_polynomial_kernels_are, traced_targets
 
 F32, F64 = torch.float32, torch.float64
 
@@ -232,13 +232,10 @@ def test_compiled_float32_rotations_without_a_gradient_match_float64_in_and_beyo
 def test_the_polynomials_keep_their_accuracy_with_contracted_multiply_adds():
     # compiled as the kernels' polynomial graphs are: multiply-adds contracted into fma where torch's
     # inductor has that option (_dispatch._polynomial_options); the bounds of the eager tests above
-    from torchquat import _dispatch
-
-    options = dict(_dispatch._polynomial_options(), **{"cpp.enable_tiling_heuristics": False})
-    if _dispatch._CONTRACT_OPTION[0] not in options:
-        pytest.skip("this torch's inductor has no option to contract multiply-adds")
-    compile_ = lambda fn: torch.compile(fn, dynamic=True, fullgraph=True, options=options)  # noqa: E731
+    compile_ = compiled_as_the_polynomial_kernels_are
     reduced = compile_(_polynomials.polynomial_cos_sin)
+    if reduced is None:
+        pytest.skip("this torch's inductor has no option to contract multiply-adds")
     half = compile_(lambda y: (lambda c, r: (c, y * r))(*_polynomials.half_cos_sinc(y * y)))
     wide = compile_(lambda x: (lambda c, r: (c, x * r))(*_polynomials.direct_cos_sinc(x * x)))
     g = torch.Generator().manual_seed(5)
