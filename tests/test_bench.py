@@ -319,3 +319,22 @@ def test_the_in_process_ab_tool_times_both_variants_in_turn(tmp_path, capsys):
     with pytest.raises(SystemExit):  # (a variants file needs two entries)
         variants.write_text("VARIANTS = {'a': lambda: None}\n")
         main([str(variants), "--ops", "quat_multiply"])
+
+
+def test_the_layout_model_computes_euler_to_quat_five_ways(capsys):
+    # tools/layout_model.py (a developer's tool, not installed): every variant of the C++ model,
+    # gathered or shuffled loads, scattered or transposed stores, planes, gives the quaternions
+    # of torchquat.euler_to_quat, so the model times the shipped arithmetic
+    from pathlib import Path
+    import runpy
+
+    tool = runpy.run_path(str(Path(__file__).resolve().parents[1] / "tools" / "layout_model.py"))
+    why = tool["_supported"]()
+    if why:
+        pytest.skip(f"the layout model cannot run here: {why}")
+    assert tool["main"](["--n", "4100", "--rounds", "1"]) == 0
+    rows = [line.split("|") for line in capsys.readouterr().out.splitlines() if line.startswith("| ")][1:]
+    names = [row[1].strip() for row in rows]
+    assert names == ["floor: out.copy_(src), (n, 4)", *tool["VARIANTS"]]
+    for row in rows[1:]:
+        assert float(row[2]) >= 0 and float(row[4]) < 1e-6, row
