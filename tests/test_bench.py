@@ -332,9 +332,9 @@ def test_the_layout_model_computes_euler_to_quat_five_ways(capsys):
     why = tool["_supported"]()
     if why:
         pytest.skip(f"the layout model cannot run here: {why}")
-    assert tool["main"](["--n", "4100", "--rounds", "1"]) == 0
+    assert tool["main"](["--n", "4100", "--rounds", "1", "--min-run-time", "0.001"]) == 0
     rows = [line.split("|") for line in capsys.readouterr().out.splitlines() if line.startswith("| ")][1:]
     names = [row[1].strip() for row in rows]
-    assert names == ["floor: out.copy_(src), (n, 4)", *tool["VARIANTS"]]
+    assert names[1:] == list(tool["VARIANTS"]) and names[0].startswith("floor")
     for row in rows[1:]:
         assert float(row[2]) >= 0 and float(row[4]) < 1e-6, row

@@ -18,7 +18,7 @@ bench's memory floor:
 Each variant's output is checked against ``torchquat.euler_to_quat`` in float64. Run::
 
     GLIBC_TUNABLES=glibc.malloc.mmap_max=0:glibc.malloc.trim_threshold=68719476736 \\
-        python tools/layout_model.py [--n 1000000] [--rounds 40] [--compiled]
+        python tools/layout_model.py [--n 1000000] [--rounds 40] [--min-run-time 0.05] [--compiled]
 
 ``--compiled`` also times torchquat's own compiled kernel (``use_compiled_kernels``) in the same
 process. ``docs/bench_profile.md`` ("Rows in memory: a model in C++ (session 27)") has the
@@ -34,7 +34,6 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import time
 
 import torch
 
@@ -199,19 +198,13 @@ def model_calls(lib: ctypes.CDLL, angles: torch.Tensor):
     return calls
 
 
-def _median_ms(call, number: int) -> float:
-    times = []
-    for _ in range(number):
-        start = time.perf_counter()
-        call()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times) * 1e3
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--n", type=int, default=1_000_000, help="rows (rounded down to a multiple of 8)")
-    parser.add_argument("--rounds", type=int, default=40, help="interleaved rounds; each times every variant once")
+    parser.add_argument("--rounds", type=int, default=40,
+                        help="interleaved rounds; each times every variant once (default: %(default)s)")
+    parser.add_argument("--min-run-time", type=float, default=0.05,
+                        help="seconds of blocked_autorange per measurement (default: %(default)s)")
     parser.add_argument("--compiled", action="store_true", help="also time torchquat's compiled kernel")
     args = parser.parse_args(argv)
     why = _supported()
@@ -219,38 +212,36 @@ def main(argv=None) -> int:
         print(f"layout_model: {why}", file=sys.stderr)
         return 2
     import torchquat
+    from torchquat.bench import timing as _timing
 
     torch.set_num_threads(1)
     n = max(8, args.n // 8 * 8)
     generator = torch.Generator().manual_seed(0)
     angles = (torch.rand(n, 3, generator=generator) * 2.0 - 1.0) * math.pi
     expected = torchquat.euler_to_quat(angles.double(), "ZYX")
+    floor_name = "floor (the bench's: `out.copy_(src)`, (n, 4))"
+    timed, errors = {floor_name: _timing.floor_fn(n, 3, (4,), torch.float32)}, {}
+    was_compiled = torchquat.compiled_kernels_enabled()
     with tempfile.TemporaryDirectory() as directory:
-        lib = build(directory)
-        calls = model_calls(lib, angles)
-        source, destination = torch.rand(n, 4), torch.empty(n, 4)
-        timed = {"floor: out.copy_(src), (n, 4)": lambda: destination.copy_(source)}
-        errors = {}
-        for name, (call, result) in calls.items():
+        for name, (call, result) in model_calls(build(directory), angles).items():
             call()
             errors[name] = (result().double() - expected).abs().max().item()
             timed[name] = call
-        was_compiled = torchquat.compiled_kernels_enabled()
-        if args.compiled:
-            torchquat.use_compiled_kernels(True)
-            compiled = lambda: torchquat.euler_to_quat(angles, "ZYX")  # (no gradient: the inference graph)
-            errors["torchquat compiled"] = (compiled().double() - expected).abs().max().item()
-            timed["torchquat compiled"] = compiled
         try:
+            if args.compiled:
+                torchquat.use_compiled_kernels(True)
+                compiled = lambda: torchquat.euler_to_quat(angles, "ZYX")  # (no gradient: the inference graph)
+                errors["torchquat compiled"] = (compiled().double() - expected).abs().max().item()
+                timed["torchquat compiled"] = compiled
             times = {name: [] for name in timed}
             for _ in range(args.rounds):
                 for name, call in timed.items():
-                    times[name].append(_median_ms(call, 3))
+                    times[name].append(_timing.measure(call, args.min_run_time, threads=1).median * 1e3)
         finally:
             torchquat.use_compiled_kernels(was_compiled)
-    floor = statistics.median(times["floor: out.copy_(src), (n, 4)"])
+    floor = statistics.median(times[floor_name])
     print(f"Euler ZYX -> quat, {n:,} float32 rows, one thread, {args.rounds} interleaved rounds "
-          f"(median of the rounds' medians of 3 calls), ms; max error against float64")
+          f"(median of the rounds' blocked_autorange medians), ms; max error against float64")
     print("| variant | ms | x floor | max error |")
     print("|---|---:|---:|---:|")
     for name, values in times.items():
