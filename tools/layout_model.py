@@ -37,6 +37,7 @@ import tempfile
 
 import torch
 
+# (the first four are euler_rows's variants 0-3, in this order; "planes" is euler_planes)
 VARIANTS = ("inductor", "shuffled loads", "transposed stores", "both", "planes")
 
 _SOURCE = r"""
