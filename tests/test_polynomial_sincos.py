@@ -182,6 +182,54 @@ def test_the_dispatcher_takes_the_polynomial_only_for_angles_within_its_range(co
     assert all(n > 0 for n in trig_calls(lambda: tq.euler_to_quat(leaf, "ZYX")))
 
 
+def test_a_call_whose_range_differs_from_the_last_runs_again_with_the_graph_its_own_range_needs(compiled, monkeypatch):
+    import torchquat._dispatch as dispatch
+
+    runs = []  # (each graph's number of cos and sin calls, every time it runs)
+
+    def backend(gm, example_inputs):
+        trig = sum(node.target in (torch.cos, torch.sin) for node in gm.graph.nodes if node.op == "call_function")
+        rounds = sum(node.target is torch.round for node in gm.graph.nodes if node.op == "call_function")
+
+        def forward(*args):
+            runs.append("torch" if trig else "reduced" if rounds else "direct")
+            return gm.forward(*args)
+
+        return forward
+
+    monkeypatch.setattr(dispatch, "_backend", backend)
+    monkeypatch.setattr(dispatch, "_compiled", {})
+    monkeypatch.setattr(dispatch, "_sincos_guesses", {})
+    torch._dynamo.reset()
+    g = torch.Generator().manual_seed(1)
+    within = torch.rand(64, 3, generator=g) * 6 - 3
+    wide, beyond = within * 100, within.clone()
+    beyond[10, 0] = math.nan
+
+    def graphs_run(x):
+        before = len(runs)
+        with torch.no_grad():
+            out = tq.euler_to_quat(x, "ZYX")
+        return runs[before:], out
+
+    first, direct = graphs_run(within)
+    assert first == ["direct"]
+    assert graphs_run(wide)[0] == ["direct", "reduced"]  # (the guess was the last call's range)
+    assert graphs_run(wide)[0] == ["reduced"]
+    ran, out = graphs_run(within)  # the reduced polynomial would be right too, but not the same numbers
+    assert ran == ["reduced", "direct"] and torch.equal(out, direct)
+    ran, out = graphs_run(beyond)
+    assert ran == ["direct", "torch"] and torch.isnan(out[10]).all() and not torch.isnan(out[:10]).any()
+    ran, out = graphs_run(within)
+    assert ran == ["torch", "direct"] and torch.equal(out, direct)
+    # each kernel (and static option) guesses from its own last call
+    assert graphs_run(beyond)[0] == ["direct", "torch"]
+    with torch.no_grad():
+        before = len(runs)
+        tq.euler_to_quat(within, "XYZ")
+    assert runs[before:] == ["direct"]
+
+
 def _big_batch(n=1_000, scale=20.0, seed=3):
     """Float32 angles or rotation vectors, wide enough for many quarter turns of the half angles."""
     g = torch.Generator().manual_seed(seed)

@@ -17,7 +17,7 @@ attribute any variant changes. For example, session 25's half-angle polynomials 
     ORIGINAL = D._sincos_mode
 
     def reduced():
-        D._sincos_mode = lambda t, context, bound: ORIGINAL(t, context, -1.0)
+        D._sincos_mode = lambda largest, bound: ORIGINAL(largest, -1.0)
 
     def direct():
         D._sincos_mode = ORIGINAL

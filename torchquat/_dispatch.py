@@ -178,19 +178,103 @@ def _run_blocked(fn: Callable, tensors: Tuple[Tensor, ...], row_dims: Tuple[int,
     return out.view(batch + out.shape[1:])
 
 
-def _sincos_mode(t: Tensor, context: Tuple, direct_bound: float) -> int:
-    """Which cos and sin a compiled call takes (``_polynomials.SINCOS_*``): torch's, unless it is
-    float32 on the CPU with no gradient recorded and every entry of ``t`` (angles, or a rotation
-    vector's components) lies within ``_polynomials.POLYNOMIAL_SINCOS_RANGE`` of 0 (NaN and
-    infinities do not); then the direct polynomials if every entry lies within ``direct_bound``,
-    else the reduced ones. Reads one number from the CPU, where that waits on nothing."""
-    if context[0] or context[2] != torch.float32 or not t.is_cpu or t.numel() == 0:
-        return _polynomials.SINCOS_TORCH
-    low, high = torch.aminmax(t)
-    largest = float(torch.maximum(high, low.neg()))  # (NaN if any entry is: no comparison holds)
+def _sincos_candidate(t: Tensor, context: Tuple) -> bool:
+    """Whether a compiled call may take the polynomial cos and sin: float32 on the CPU, no gradient
+    recorded, a non-empty first input (the polynomials are for the graphs inference takes)."""
+    return not context[0] and context[2] == torch.float32 and t.is_cpu and t.numel() > 0
+
+
+def _sincos_mode(largest: float, direct_bound: float) -> int:
+    """Which cos and sin (``_polynomials.SINCOS_*``) a call whose first input's largest entry in
+    magnitude is ``largest`` needs: the direct polynomials within ``direct_bound``, the reduced ones
+    within ``_polynomials.POLYNOMIAL_SINCOS_RANGE``, else (or NaN: no comparison holds) torch's."""
     if not largest <= _polynomials.POLYNOMIAL_SINCOS_RANGE:
         return _polynomials.SINCOS_TORCH
     return _polynomials.SINCOS_DIRECT if largest <= direct_bound else _polynomials.SINCOS_REDUCED
+
+
+def _largest_entry(x: Tensor) -> Tensor:
+    """The largest ``|entry|`` of ``x`` (NaN if any is), a row's entries compared first: inductor
+    then fuses the reduction into the kernel's own loop over rows (a reduction over the flat input
+    is a second loop of its own, as costly as a separate ``aminmax``)."""
+    columns = x.unbind(-1)
+    largest = columns[0].abs()
+    for column in columns[1:]:
+        largest = torch.maximum(largest, column.abs())
+    return largest.amax()
+
+
+_with_largest_entries: Dict[Callable, Callable] = {}
+
+
+def _with_largest_entry(fn: Callable) -> Callable:
+    """``fn``, also returning its first input's :func:`_largest_entry` (one wrapper per kernel, so
+    that its compiled functions are found again)."""
+    checked = _with_largest_entries.get(fn)
+    if checked is None:
+        def checked(*tensors, **static):
+            return fn(*tensors, **static), _largest_entry(tensors[0])
+
+        checked = _with_largest_entries[fn] = functools.wraps(fn)(checked)
+    return checked
+
+
+# the cos and sin each polynomial kernel's last checked call needed, its next call's first guess
+_sincos_guesses: Dict[Tuple, int] = {}
+
+
+def _call_compiled(fn: Callable, static_items: Tuple, context: Tuple, tensors: Tuple[Tensor, ...],
+                   polynomial_atan2: bool, sincos: int = _polynomials.SINCOS_TORCH):
+    """The compiled ``fn``'s output for this call's ``context``, or ``None`` where it must run eagerly
+    (past dynamo's recompile limit without ``torch.compiler.set_stance``)."""
+    compiled = _compiled_for(fn, static_items, context, polynomial_atan2 or bool(sincos))
+    if compiled in _past_limit:
+        if _set_stance is None:
+            return None
+        # its graphs still serve the layouts they were made for; a new one runs eagerly at once (no
+        # guard failure, recompile attempt and warning a call)
+        with _set_stance("eager_on_recompile"):
+            return compiled(*tensors)
+    if polynomial_atan2:  # (read only if this call traces; other kernels leave it alone)
+        _polynomials.KERNEL_CALL.polynomial_atan2 = True
+    if sincos:
+        _polynomials.KERNEL_CALL.polynomial_sincos = sincos
+    try:
+        return compiled(*tensors)
+    except Exception as error:
+        if type(error).__name__ != "FailOnRecompileLimitHit":
+            raise
+        _past_limit.add(compiled)
+        return None
+    finally:
+        if polynomial_atan2:
+            _polynomials.KERNEL_CALL.polynomial_atan2 = False
+        if sincos:
+            _polynomials.KERNEL_CALL.polynomial_sincos = _polynomials.SINCOS_TORCH
+
+
+def _call_checking_sincos(fn: Callable, static_items: Tuple, context: Tuple, tensors: Tuple[Tensor, ...],
+                          polynomial_atan2: bool, direct_bound: float):
+    """A polynomial kernel's compiled call (float32 CPU, no gradient: :func:`_sincos_candidate`). The
+    graph of the cos and sin this kernel's last call needed (the direct polynomials at first) runs
+    and also returns the input's :func:`_largest_entry`, fused into its loop; where that entry needs
+    other cos and sin (:func:`_sincos_mode`), their graph runs again on the input, and becomes the next
+    call's guess. So every output is the one its input's range calls for, and a call in the range of
+    the last costs one loop: a separate ``aminmax`` first took 0.6-1.0 ms per 1e6 rows of 3, a fifth
+    of Euler -> quat. ``None`` where it must run eagerly (as :func:`_call_compiled`)."""
+    key = (fn, static_items)
+    sincos = _sincos_guesses.get(key, _polynomials.SINCOS_DIRECT)
+    checked = _with_largest_entry(fn)
+    for _ in range(2):  # (the second graph's answer is the first's: the same input's largest entry)
+        result = _call_compiled(checked, static_items, context + (sincos,), tensors, polynomial_atan2, sincos)
+        if result is None:
+            return None
+        output, largest = result
+        needed = _sincos_mode(float(largest), direct_bound)
+        if needed == sincos:
+            break
+        sincos = _sincos_guesses[key] = needed
+    return output
 
 
 # Multiplies every kernel's ``compiled_from_rows`` (tests set 0 to compile every batch size).
@@ -325,11 +409,11 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
 
     ``polynomial_sincos`` (a bound in radians, 0 for none): the same for the half angles' cos and
     sin (``_polynomials.cos_sin_up_to_sign``, ``cos_sinc_of_squares``), in calls whose first input's
-    entries all lie within ``_polynomials.POLYNOMIAL_SINCOS_RANGE`` (one ``aminmax``: 0.6 ms per 1e6
-    rows of 3, where the polynomial saves 0.5-1 ms for rotation vectors and about 3 for Euler
-    angles): the polynomials without a range reduction (``_polynomials.half_cos_sinc``) where they
-    all lie within the bound, the reduced ones (``polynomial_cos_sin``) elsewhere; other calls take
-    a graph of their own with ``torch.cos`` and ``torch.sin``.
+    entries all lie within ``_polynomials.POLYNOMIAL_SINCOS_RANGE``: the polynomials without a range
+    reduction (``_polynomials.half_cos_sinc``) where they all lie within the bound, the reduced ones
+    (``polynomial_cos_sin``) elsewhere; other calls take a graph of their own with ``torch.cos`` and
+    ``torch.sin``. The graphs find the largest entry in their own loop and a call whose guess was
+    wrong runs again (:func:`_call_checking_sincos`).
 
     ``one_row`` (a :class:`torchquat._one_row.OneRow`): the kernel's formulas in Python floats, which
     a call on one CPU row takes, with one autograd node of its own where a graph is recorded (see
@@ -362,35 +446,17 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
             # the call runs eagerly instead of failing (fullgraph=True makes the limit an error).
             context = (torch.is_grad_enabled() and any(t.requires_grad for t in tensors),
                        torch.is_inference_mode_enabled(), tensors[0].dtype)
-            sincos = (_sincos_mode(tensors[0], context, polynomial_sincos) if polynomial_sincos
-                      else _polynomials.SINCOS_TORCH)
-            if polynomial_sincos:  # (a graph for each answer: the trace reads it as a constant)
-                context += (sincos,)
-            compiled = _compiled_for(fn, tuple(sorted(static.items())), context,
-                                     polynomial_atan2 or sincos)
-            if compiled not in _past_limit:
-                if polynomial_atan2:  # (read only if this call traces; other kernels leave it alone)
-                    _polynomials.KERNEL_CALL.polynomial_atan2 = True
-                if sincos:
-                    _polynomials.KERNEL_CALL.polynomial_sincos = sincos
-                try:
-                    if context[0]:
-                        return _first_order_only(compiled(*tensors), tensors)
-                    return compiled(*tensors)
-                except Exception as error:
-                    if type(error).__name__ != "FailOnRecompileLimitHit":
-                        raise
-                    _past_limit.add(compiled)
-                finally:
-                    if polynomial_atan2:
-                        _polynomials.KERNEL_CALL.polynomial_atan2 = False
-                    if sincos:
-                        _polynomials.KERNEL_CALL.polynomial_sincos = _polynomials.SINCOS_TORCH
-            elif _set_stance is not None:  # its graphs still serve the layouts they were made for;
-                # a new one runs eagerly at once (no guard failure, recompile attempt and warning a call)
-                with _set_stance("eager_on_recompile"):
-                    output = compiled(*tensors)
-                return _first_order_only(output, tensors) if context[0] else output
+            static_items = tuple(sorted(static.items()))
+            if polynomial_sincos and _sincos_candidate(tensors[0], context):
+                output = _call_checking_sincos(fn, static_items, context, tensors, polynomial_atan2, polynomial_sincos)
+            else:
+                if polynomial_sincos:  # (a graph for each answer: the trace reads it as a constant)
+                    context += (_polynomials.SINCOS_TORCH,)
+                output = _call_compiled(fn, static_items, context, tensors, polynomial_atan2)
+                if output is not None and context[0]:
+                    output = _first_order_only(output, tensors)
+            if output is not None:
+                return output
         if (blocked_row_dims is not None and not _is_compiling()
                 and (tensors[0].numel() >= _BLOCKED_FROM or tensors[-1].numel() >= _BLOCKED_FROM
                      or (len(tensors) > 2 and any(t.numel() >= _BLOCKED_FROM for t in tensors[1:-1])))
