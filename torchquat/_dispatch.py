@@ -256,14 +256,17 @@ def _call_compiled(fn: Callable, static_items: Tuple, context: Tuple, tensors: T
 def _call_checking_sincos(fn: Callable, static_items: Tuple, context: Tuple, tensors: Tuple[Tensor, ...],
                           polynomial_atan2: bool, direct_bound: float):
     """A polynomial kernel's compiled call (float32 CPU, no gradient: :func:`_sincos_candidate`). The
-    graph of the cos and sin this kernel's last call needed (the direct polynomials at first) runs
-    and also returns the input's :func:`_largest_entry`, fused into its loop; where that entry needs
-    other cos and sin (:func:`_sincos_mode`), their graph runs again on the input, and becomes the next
-    call's guess. So every output is the one its input's range calls for, and a call in the range of
+    graph of the cos and sin this kernel's last call needed (at its first call, those an ``aminmax``
+    of the input picks) runs and also returns the input's :func:`_largest_entry`, fused into its loop;
+    where that entry needs other cos and sin (:func:`_sincos_mode`), their graph runs again on the
+    input. So every output is the one its input's range calls for, and a call in the range of
     the last costs one loop: a separate ``aminmax`` first took 0.6-1.0 ms per 1e6 rows of 3, a fifth
     of Euler -> quat. ``None`` where it must run eagerly (as :func:`_call_compiled`)."""
     key = (fn, static_items)
-    sincos = _sincos_guesses.get(key, _polynomials.SINCOS_DIRECT)
+    sincos = _sincos_guesses.get(key)
+    if sincos is None:  # (a kernel's first call: no graph is compiled that its input does not need)
+        low, high = torch.aminmax(tensors[0])
+        sincos = _sincos_mode(float(torch.maximum(high, low.neg())), direct_bound)
     checked = _with_largest_entry(fn)
     for _ in range(2):  # (the second graph's answer is the first's: the same input's largest entry)
         result = _call_compiled(checked, static_items, context + (sincos,), tensors, polynomial_atan2, sincos)
@@ -273,7 +276,8 @@ def _call_checking_sincos(fn: Callable, static_items: Tuple, context: Tuple, ten
         needed = _sincos_mode(float(largest), direct_bound)
         if needed == sincos:
             break
-        sincos = _sincos_guesses[key] = needed
+        sincos = needed
+    _sincos_guesses[key] = sincos
     return output
 
 
