@@ -1,5 +1,7 @@
 """The opt-in compiled path (``use_compiled_kernels``) gives the eager answers and gradients."""
 
+import operator
+
 import pytest
 import torch
 
@@ -308,3 +310,37 @@ def test_a_batch_of_output_gradients_through_a_compiled_kernel_raises_a_clear_er
     expected = torch.autograd.functional.jacobian(fn, x, vectorize=True)
     torch.testing.assert_close(unbatched, expected, rtol=0, atol=1e-12)
     torch.testing.assert_close(through_func, expected, rtol=0, atol=1e-12)
+
+
+def test_copysign_and_sign_bit_keep_torchs_bits_in_traces_without_sleefs_call():
+    from torchquat._math import copysign, sign_bit
+
+    specials = [0.0, -0.0, 1.5, -1.5, float("inf"), -float("inf"), float("nan"), -float("nan"), 1e-45, -1e-45, 3e38]
+    grid = torch.tensor(specials)
+    magnitude, sign = (t.flatten() for t in torch.meshgrid(grid, grid, indexing="ij"))
+    targets = []
+
+    def backend(gm, example_inputs):
+        targets.extend(node.target for node in gm.graph.nodes if node.op == "call_function")
+        return gm.forward
+
+    def both(a, b):
+        return copysign(a, b), sign_bit(b)
+
+    expected = torch.copysign(magnitude, sign).view(torch.int32), torch.signbit(sign)
+    for compiler in (backend, "inductor"):
+        torch._dynamo.reset()
+        with torch.no_grad():
+            got, negative = torch.compile(both, backend=compiler, fullgraph=True)(magnitude, sign)
+        assert torch.equal(got.view(torch.int32), expected[0]) and torch.equal(negative, expected[1])
+    # float32 traces that record no gradient take integer masks (inductor's CPU code would call
+    # SLEEF's copysign out of line); eagerly, with a gradient or in float64, torch's copysign
+    assert torch.copysign not in targets and operator.and_ in targets and operator.or_ in targets
+    targets.clear()
+    torch._dynamo.reset()
+    leaf = magnitude[:8].clone().requires_grad_()
+    got = torch.compile(lambda a, b: copysign(a, b), backend=backend, fullgraph=True)(leaf, sign[:8])
+    assert torch.copysign in targets
+    assert torch.equal(torch.autograd.grad(got.sum(), leaf)[0], torch.autograd.grad(torch.copysign(leaf, sign[:8]).sum(), leaf)[0])
+    assert torch.equal(copysign(magnitude.double(), sign.double()).view(torch.int64),
+                       torch.copysign(magnitude.double(), sign.double()).view(torch.int64))

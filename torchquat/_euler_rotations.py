@@ -14,7 +14,7 @@ import torch
 from torch import Tensor
 
 from ._closed_form import Rule, jacobian_rule
-from ._math import HALF_IDENTITY, bilinear, bilinear_terms, constant, contract
+from ._math import HALF_IDENTITY, bilinear, bilinear_terms, constant, contract, copysign
 from ._polynomials import cos_sin_up_to_sign
 from ._planes import columns, plane_buffer, rows, slot
 from .conventions import EULER_CONVENTIONS, EulerConvention
@@ -154,14 +154,14 @@ def _euler_to_quat_small(angles: Tensor, convention: EulerConvention) -> Tensor:
     q = contract(products, "euler_signs_" + convention.name, _SIGN_TABLES[convention.name])
     # w >= 0 from w's sign alone (cheaper than standardize_sign; w == 0 exactly would need
     # a product of float cosines and sines to cancel exactly, and then either sign is right)
-    return q * torch.copysign(constant("one", 1.0, q), q.narrow(-1, 0, 1))
+    return q * copysign(constant("one", 1.0, q), q.narrow(-1, 0, 1))
 
 
 def _euler_to_quat_with_jacobian(angles: Tensor, convention: EulerConvention):
     rows = contract(_outer_products(angles * constant("half", 0.5, angles), False, slots=True, scale=0.5),
                     "euler_signs_" + convention.name,
                     _SIGN_TABLES[convention.name])  # (..., 4, 4): q, then dq / d angle n
-    rows = rows * torch.copysign(constant("one", 1.0, rows), rows[..., :1, :1])
+    rows = rows * copysign(constant("one", 1.0, rows), rows[..., :1, :1])
     return rows[..., 0, :], rows[..., 1:, :]
 
 
@@ -179,7 +179,7 @@ def _euler_to_quat_columnwise_parts(angles: Tensor, convention: EulerConvention,
     # the table's row 4 m1 + 2 m2 + m3 is pair 2 m1 + m2 times factor m3 of the third angle:
     # two terms per component (one product of three elementary quaternions)
     q = bilinear(pairs, cs[2], _SIGN_BILINEAR[convention.name])
-    sign = torch.copysign(constant("one", 1.0, q[0]), q[0])  # w >= 0 (a where on w < 0 mispredicts)
+    sign = copysign(constant("one", 1.0, q[0]), q[0])  # w >= 0 (a where on w < 0 mispredicts)
     buffer = plane_buffer(4, q, output=values)
     q = [torch.mul(c, sign, out=slot(buffer, i)) for i, c in enumerate(q)]
     return rows(q if buffer is None else buffer), (*q, *cs[_ANGLE_TERMS[convention.name][0]])

@@ -150,6 +150,38 @@ def matmul3(a: Tensor, b: Tensor) -> Tensor:
 _CONSTANTS = {}
 
 
+# float32's sign bit and the rest, as int32 masks
+_SIGN_BIT, _MAGNITUDE_BITS = -0x80000000, 0x7FFFFFFF
+
+
+def _bitwise_signs(*tensors: Tensor) -> bool:
+    """Whether a trace may take the sign bits of ``tensors`` as integers: ``torch.compile`` tracing
+    float32 CPU tensors that record no gradient. Inductor's CPU loops call SLEEF's ``copysign`` out of
+    line (``Sleef_copysignf8``), and every vector register live in the loop is spilled around that call;
+    integer masks stay in registers. In one process at 1e6 rows: Euler ZYX -> quat 0.77x the time,
+    axis-angle -> quat 0.78x, quat -> Euler ZYX 0.85x (``docs/bench_profile.md``, "copysign")."""
+    return (torch.compiler.is_compiling() and all(t.dtype == torch.float32 and t.is_cpu for t in tensors)
+            and not (torch.is_grad_enabled() and any(t.requires_grad for t in tensors)))
+
+
+def copysign(magnitude: Tensor, sign: Tensor) -> Tensor:
+    """``torch.copysign(magnitude, sign)``, the same bits; by integer masks where
+    :func:`_bitwise_signs` allows (NaN's sign bit too, as ``torch.copysign``)."""
+    if _bitwise_signs(magnitude, sign):
+        bits = (magnitude.view(torch.int32) & _MAGNITUDE_BITS) | (sign.view(torch.int32) & _SIGN_BIT)
+        return bits.view(torch.float32)
+    return torch.copysign(magnitude, sign)
+
+
+def sign_bit(x: Tensor) -> Tensor:
+    """``torch.signbit(x)`` (``-0.0`` and negative NaNs included), as a vectorised loop: inductor's CPU
+    code has no vector ``signbit``; the int32 view's sign where :func:`_bitwise_signs` allows, else
+    ``copysign(1, x) < 0``."""
+    if _bitwise_signs(x):
+        return x.view(torch.int32) < 0
+    return torch.copysign(torch.ones_like(x), x) < 0
+
+
 def constant(name: str, values, like: Tensor, dtype=None) -> Tensor:
     """A constant table in ``like``'s dtype (or ``dtype``) and device, built once per (dtype, device).
 

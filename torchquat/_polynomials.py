@@ -11,7 +11,7 @@ import threading
 import torch
 from torch import Tensor
 
-from ._math import _assume_constant_result, literal
+from ._math import _assume_constant_result, copysign, literal, sign_bit
 
 # atan(a) / a as a polynomial in s = a^2 on [0, 1], coefficients of s^0 .. s^8: a least-squares fit
 # of the relative error, reweighted towards its peaks (near minimax), made in float64 for this
@@ -85,12 +85,12 @@ def polynomial_atan2(y: Tensor, x: Tensor, y_nonnegative: bool = False, x_nonneg
     if x_nonnegative:
         angle = torch.where(above, half_pi - r, r)
     else:
-        # pi/2 - r above the diagonal, pi - that for x negative (its sign bit, by copysign: signbit is
-        # no vectorised loop in inductor's CPU code): K + S r, one rounding
-        negative = torch.copysign(torch.ones_like(x), x) < zero
+        # pi/2 - r above the diagonal, pi - that for x negative (its sign bit: _math.sign_bit, since
+        # signbit is no vectorised loop in inductor's CPU code): K + S r, one rounding
+        negative = sign_bit(x)
         offset = torch.where(above, half_pi, torch.where(negative, pi, zero))
         angle = offset + torch.where(above != negative, -one, one) * r
-    return angle if y_nonnegative else torch.copysign(angle, y)
+    return angle if y_nonnegative else copysign(angle, y)
 
 
 # Set by the compiled kernels' dispatcher (torchquat._dispatch) while it calls a kernel marked

@@ -12,7 +12,7 @@ from . import _closed_form as closed_form
 from ._closed_form import Rule, jacobian_rule
 from ._dispatch import kernel
 from ._one_row import OneRow
-from ._math import (HALF_IDENTITY, constant, contract, is_small, outer_product, small_angle_threshold,
+from ._math import (HALF_IDENTITY, constant, contract, copysign, is_small, outer_product, small_angle_threshold,
                     sum_of_products, sum_of_squares)
 from ._polynomials import DIRECT_ROTATION_VECTOR_ENTRIES, atan2, cos_sin_up_to_sign, cos_sinc_of_squares
 from ._planes import columns, plane_buffer, rows, slot
@@ -51,7 +51,7 @@ def _half_angle(v: Tensor, for_autograd: bool = True, twice: bool = False):
 def _axis_angle_to_quat_small(v: Tensor, for_autograd: bool = True) -> Tensor:
     _, _, _, _, cos_half, sinc_half = _half_angle(v, for_autograd, twice=for_autograd)
     # w >= 0: cos(theta / 2) of a float angle is never exactly 0, so its sign alone decides.
-    return torch.cat((cos_half, v * sinc_half), dim=-1) * torch.copysign(constant("one", 1.0, v), cos_half)
+    return torch.cat((cos_half, v * sinc_half), dim=-1) * copysign(constant("one", 1.0, v), cos_half)
 
 
 def _half_turn_quat(v: Tensor) -> Tensor:
@@ -67,7 +67,7 @@ def _half_turn_quat(v: Tensor) -> Tensor:
 
 def _axis_angle_to_quat_values(v: Tensor) -> Tensor:
     q = _half_turn_quat(v)
-    return q * torch.copysign(constant("one", 1.0, v), q.narrow(-1, 0, 1))  # w >= 0, as above
+    return q * copysign(constant("one", 1.0, v), q.narrow(-1, 0, 1))  # w >= 0, as above
 
 
 # (..., 3, 4) Jacobian rows: d q / d v_i. Row i is s e_{i+1} plus v_i times (-s / 2, t v) with
@@ -77,7 +77,7 @@ _SHIFTED_EYE = ((0.0, 1.0, 0.0, 0.0), (0.0, 0.0, 1.0, 0.0), (0.0, 0.0, 0.0, 1.0)
 
 def _axis_angle_to_quat_with_jacobian(v: Tensor):
     theta, small, theta_safe, half, cos_half, sinc_half = _half_angle(v)
-    sign = torch.copysign(constant("one", 1.0, v), cos_half)
+    sign = copysign(constant("one", 1.0, v), cos_half)
     q = torch.cat((cos_half, v * sinc_half), dim=-1) * sign
     # minus_2t = -2t = (s - c / 2) / (theta^2 / 2); its cancellation (eps / theta^2 relative)
     # multiplies v v^T ~ theta^2, so it costs eps absolute. Series: 1/12 - theta^2 / 480.
@@ -135,7 +135,7 @@ def _axis_angle_scale(q: Tensor, for_autograd: bool = True, twice: bool = False)
     rotation vector ``m u``. ``twice``: as for :func:`_half_angle`."""
     # shortest arc: use the w >= 0 copy (at w == 0 both copies are half turns, either is right)
     w0, u = q.narrow(-1, 0, 1), q.narrow(-1, 1, 3)
-    hemisphere = torch.copysign(constant("two", 2.0, q), w0)  # the factor 2 of the angle, signed
+    hemisphere = copysign(constant("two", 2.0, q), w0)  # the factor 2 of the angle, signed
     w = w0.abs()
     # angle / |u| = 2 atan2(|u|, w) / |u| = (2 / w)(1 - r^2/3 + ...) with r = |u| / w: below
     # r^2 = eps the limit 2 / w is exact to rounding. Above it the closed form is accurate, and
@@ -228,7 +228,7 @@ def _axis_angle_to_quat_columnwise_parts(v: Tensor, for_autograd: bool = False, 
         x = torch.sqrt(x2).clamp_min_(torch.finfo(v.dtype).tiny)
         cos_half = torch.cos(x)
         sinc = torch.sin(x) / x
-    sign = torch.copysign(constant("one", 1.0, cos_half), cos_half)  # (an eager where on a random sign mispredicts)
+    sign = copysign(constant("one", 1.0, cos_half), cos_half)  # (an eager where on a random sign mispredicts)
     s = sinc * sign
     buffer = plane_buffer(4, h, output=values)
     q = [torch.mul(cos_half, sign, out=slot(buffer, 0))] + [torch.mul(c, s, out=slot(buffer, i)) for i, c in enumerate(h, 1)]
@@ -276,7 +276,7 @@ def _quat_to_axis_angle_columnwise_parts(q: Tensor, for_autograd: bool = False):
     # angle / (2 n), signed by the hemisphere (as the table path, copysign: -0.0 takes -1); rows() doubles it
     # (atan2's (0, 0) is a small row; at (inf, inf) its result over n is 0 or NaN, times u's infinity NaN)
     angle = atan2(n, w, y_nonnegative=True, x_nonnegative=True, special_values=False)
-    m = torch.copysign(torch.where(small, inverse, angle / n), w0)
+    m = copysign(torch.where(small, inverse, angle / n), w0)
     buffer = plane_buffer(3, u, output=False)  # (rows() applies a table)
     v = [torch.mul(c, m, out=slot(buffer, i)) for i, c in enumerate(u)]
     return rows(v if buffer is None else buffer, _DOUBLE, "double3"), (w0, *u, n2, small, m)

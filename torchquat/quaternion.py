@@ -17,7 +17,7 @@ from . import _closed_form as closed_form
 from ._closed_form import Rule
 from ._dispatch import kernel
 from ._one_row import OneRow
-from ._math import bilinear, bilinear_terms, constant, contract, is_small, outer_product, sum_of_squares
+from ._math import bilinear, bilinear_terms, constant, contract, copysign, is_small, outer_product, sum_of_squares
 from ._planes import columns, planar, plane_buffer, rows, slot
 from ._validation import prepare, prepare_pair, restore
 
@@ -174,8 +174,8 @@ def standardize_sign(q: Tensor, magnitude: Optional[Tensor] = None) -> Tensor:
     # sign(8 sign(w) + 4 sign(x) + 2 sign(y) + sign(z)) is the sign of the first non-zero
     # component (each weight exceeds the sum of the later ones): 3 ops instead of nested wheres.
     key = contract(torch.sign(q), "lexicographic", [8.0, 4.0, 2.0, 1.0])
-    return torch.copysign(constant("one", 1.0, q) if magnitude is None else magnitude,
-                          key.unsqueeze(-1))  # key = +0 only for q = 0
+    return copysign(constant("one", 1.0, q) if magnitude is None else magnitude,
+                    key.unsqueeze(-1))  # key = +0 only for q = 0
 
 
 @kernel

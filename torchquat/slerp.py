@@ -11,7 +11,7 @@ from . import _closed_form as closed_form
 from ._closed_form import Rule
 from ._dispatch import kernel
 from ._one_row import OneRow
-from ._math import constant, is_small, sum_of_products, sum_of_squares
+from ._math import constant, copysign, is_small, sum_of_products, sum_of_squares
 from ._planes import columns, plane_buffer, rows, slot
 from ._validation import check_broadcast, prepare_pair, restore
 
@@ -105,7 +105,7 @@ def _slerp_columns_parts(q0: Tensor, q1: Tensor, t: Tensor):
     scale0 = torch.rsqrt(sum_of_squares(a))  # (inf for a zero quaternion: 0 * inf is NaN below)
     scale1 = torch.rsqrt(sum_of_squares(b))
     # q1's scale takes the sign of the short arc, as the rows' test: - where <p, q> < -8 eps
-    scale1 = torch.copysign(scale1, torch.addcmul(_arc_tie(scale1, 1.0), sum_of_products(a, b), scale0 * scale1))
+    scale1 = copysign(scale1, torch.addcmul(_arc_tie(scale1, 1.0), sum_of_products(a, b), scale0 * scale1))
     chord = [torch.addcmul(x * scale0, y, scale1, value=-1.0) for x, y in zip(a, b)]  # p - q, unit p and q
     square = sum_of_squares(chord)
     small = square < constant("sqrt_eps", torch.finfo(square.dtype).eps ** 0.5, square)
