@@ -114,13 +114,40 @@ def test_the_polynomial_is_taken_only_in_the_marked_kernels_float32_cpu_graphs_w
         assert _atan2_calls(_polynomials.atan2, y, x) == 0
         assert _atan2_calls(_polynomials.atan2, y.double(), x.double()) == 1  # float64: torch's
         leaf = y.clone().requires_grad_()
-        assert _atan2_calls(_polynomials.atan2, leaf, x) == 1  # a recorded gradient: torch's exact one
+        # a recorded gradient: the polynomial's value, torch.atan2's derivative (an autograd.Function)
+        assert _atan2_calls(_polynomials.atan2, leaf, x) == 0
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(_polynomials, "TRAINING_POLYNOMIAL", False)
+            assert _atan2_calls(_polynomials.atan2, leaf, x) == 1
         with torch.no_grad():
             assert _atan2_calls(_polynomials.atan2, leaf, x) == 0
     finally:
         _polynomials.KERNEL_CALL.polynomial_atan2 = False
     # eager: torch.atan2 always, bit for bit
     assert torch.equal(_polynomials.atan2(y, x), torch.atan2(y, x))
+
+
+def test_with_a_gradient_the_marked_kernels_take_the_polynomials_value_and_atan2s_exact_derivative():
+    # Through min and max the polynomial's own derivative is 0 on the diagonal |x| = |y| (so training
+    # graphs kept SLEEF's atan2, an out-of-line call); the autograd.Function keeps its value and
+    # gives torch.atan2's derivative everywhere.
+    y = torch.tensor([1.0, -2.0, 0.5, 3.0, -1e-3, 0.0, 7.0, -4.0], dtype=F32)
+    x = torch.tensor([1.0, 2.0, -0.5, 0.25, 5.0, -2.0, -7.0, -1e-4], dtype=F32)
+    w = torch.randn(8, generator=torch.Generator().manual_seed(5), dtype=F32)
+    leaves = y.clone().requires_grad_(), x.clone().requires_grad_()
+    _polynomials.KERNEL_CALL.polynomial_atan2 = True
+    try:
+        torch._dynamo.reset()
+        out = torch.compile(_polynomials.atan2, backend="aot_eager", fullgraph=True)(*leaves)
+        grads = torch.autograd.grad(out, leaves, w)
+    finally:
+        _polynomials.KERNEL_CALL.polynomial_atan2 = False
+    assert torch.equal(out.detach(), _polynomials.polynomial_atan2(y, x))
+    expected = torch.autograd.grad(torch.atan2(*leaves), leaves, w)
+    for g, e in zip(grads, expected):
+        assert torch.equal(g, e)
+    own = torch.autograd.grad(_polynomials.polynomial_atan2(*leaves), leaves, w)
+    assert not torch.equal(own[0][:3], expected[0][:3])  # (the diagonal rows: not a vacuous check)
 
 
 def test_the_marked_kernels_graphs_take_the_polynomial_and_a_users_compile_does_not(compiled, monkeypatch):
@@ -150,11 +177,17 @@ def test_the_marked_kernels_graphs_take_the_polynomial_and_a_users_compile_does_
         assert calls[current] == 0, current
         if _math.literals_trace():  # (its numbers are literals of the graph, not inputs)
             assert inputs[current] == [], current
+    # with a gradient: the polynomial's value, atan2's derivative (an autograd.Function, or the
+    # distance's closed-form rule, whose forward records nothing)
     current = "distance with a gradient"
     tq.quat_geodesic_distance(q.clone().requires_grad_(), q)
-    assert calls[current] == 1
+    assert calls[current] == 0
     current = "with a gradient"
     leaf = q.clone().requires_grad_()
+    tq.quat_to_euler(leaf, "ZYX")
+    assert calls[current] == 0
+    monkeypatch.setattr(_polynomials, "TRAINING_POLYNOMIAL", False)
+    current = "with a gradient, SLEEF's atan2"
     tq.quat_to_euler(leaf, "ZYX")
     assert calls[current] == 3  # t1, the middle angle, the double angle
     tq.use_compiled_kernels(False)

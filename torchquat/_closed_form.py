@@ -130,6 +130,41 @@ class _ClosedForm(torch.autograd.Function):
         return tuple(result)
 
 
+TRACED = True
+
+
+def traced_rule(rule: Rule) -> Callable:
+    """``rule``'s kernel for ``torch.compile`` traces: a function of ``(*inputs, **options)`` that gives
+    ``rule.plain``'s output where nothing records a graph, and where autograd records, an
+    ``autograd.Function`` of ``rule.forward``'s output that saves only the inputs, whose backward runs
+    ``rule.forward`` again for what the closed form needs, then ``rule.backward``."""
+
+    class TracedRule(torch.autograd.Function):
+        @staticmethod
+        def forward(options, *inputs):
+            return rule.forward(*inputs, **dict(options))[0]
+
+        @staticmethod
+        def setup_context(ctx, inputs, output):
+            ctx.options = inputs[0]
+            ctx.save_for_backward(*inputs[1:])
+
+        @staticmethod
+        def backward(ctx, grad):
+            inputs, options = ctx.saved_tensors, dict(ctx.options)
+            grads = rule.backward(grad, inputs, rule.forward(*inputs, **options)[1], **options)
+            return (None, *(g if g.shape == x.shape else g.sum_to_size(x.shape) for g, x in zip(grads, inputs)))
+
+    def traced(*inputs: Tensor, **options):
+        if (TRACED and torch.compiler.is_dynamo_compiling() and torch.is_grad_enabled()
+                and any(x.requires_grad for x in inputs)
+                and not (len(inputs) == 2 and inputs[0] is inputs[1])):  # (dynamo refuses a tensor twice)
+            return TracedRule.apply(tuple(options.items()), *inputs)
+        return rule.plain(*inputs, **options)
+
+    return traced
+
+
 def apply(rule: Rule, *inputs: Tensor, **options):
     """``rule``'s output with its closed-form backward when autograd records; ``rule.plain`` under
     transforms; else ``rule.values`` (or ``rule.plain`` if it has none)."""

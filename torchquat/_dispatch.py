@@ -407,9 +407,9 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
     about 30 us) is more than eager code takes: the crossover measured on a CPU, forward and with
     the backward (``docs/bench_profile.md``, "Session 14"). Off the CPU every batch is compiled.
 
-    ``polynomial_atan2``: the kernel's compiled float32 CPU graphs without a gradient compute
-    ``atan2`` by ``_polynomials.polynomial_atan2`` (compiled with the inductor option that keeps their
-    compile time in bounds); nowhere else.
+    ``polynomial_atan2``: the kernel's compiled float32 CPU graphs compute ``atan2`` by
+    ``_polynomials.polynomial_atan2`` (compiled with the inductor option that keeps their compile
+    time in bounds; with a gradient, with ``torch.atan2``'s derivative); nowhere else.
 
     ``polynomial_sincos`` (a bound in radians, 0 for none): the same for the half angles' cos and
     sin (``_polynomials.cos_sin_up_to_sign``, ``cos_sinc_of_squares``), in calls whose first input's

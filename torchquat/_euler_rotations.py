@@ -13,7 +13,7 @@ from typing import Dict, Tuple
 import torch
 from torch import Tensor
 
-from ._closed_form import Rule, jacobian_rule
+from ._closed_form import Rule, jacobian_rule, traced_rule
 from ._math import HALF_IDENTITY, bilinear, bilinear_terms, constant, contract, copysign
 from ._polynomials import cos_sin_up_to_sign
 from ._planes import columns, plane_buffer, rows, slot
@@ -231,6 +231,7 @@ def _euler_to_quat_columnwise_backward(grad: Tensor, inputs, saved, convention: 
 EULER_TO_QUAT_COLUMNWISE = Rule(euler_to_quat_columnwise, _euler_to_quat_columnwise_parts,
                                  _euler_to_quat_columnwise_backward,
                                  lambda angles, convention: _euler_to_quat_columnwise_parts(angles, convention, values=True)[0])
+EULER_TO_QUAT_TRACED = traced_rule(EULER_TO_QUAT_COLUMNWISE)
 
 
 def euler_to_matrix_small(angles: Tensor, convention: EulerConvention) -> Tensor:

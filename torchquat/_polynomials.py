@@ -1,8 +1,8 @@
 """Float32 stand-ins for ``atan2``, ``cos`` and ``sin`` in plain arithmetic, which inductor's CPU
 loops vectorise where SLEEF's functions cost more than the rest of a kernel: taken only in the
-compiled kernels' own float32 CPU graphs that record no gradient (``torchquat._dispatch`` marks
-those calls in :data:`KERNEL_CALL`), never eagerly, in training graphs or in a user's own
-``torch.compile``. See ``docs/bench_profile.md``, "A polynomial ``atan2``" and "A polynomial cos
+compiled kernels' own float32 CPU graphs (``torchquat._dispatch`` marks those calls in
+:data:`KERNEL_CALL`), never eagerly or in a user's own ``torch.compile``; ``cos`` and ``sin`` only
+where no gradient is recorded, ``atan2`` in training graphs too, with ``torch.atan2``'s derivative. See ``docs/bench_profile.md``, "A polynomial ``atan2``" and "A polynomial cos
 and sin"."""
 
 import math
@@ -108,21 +108,50 @@ def _in_polynomial_atan2_kernel() -> bool:
 
 def atan2(y: Tensor, x: Tensor, out=None, *, y_nonnegative: bool = False, x_nonnegative: bool = False,
           special_values: bool = True) -> Tensor:
-    """``torch.atan2(y, x)``; in the compiled kernels' own graphs of float32 CPU tensors that record
-    no gradient, :func:`polynomial_atan2` (2x faster in inductor's loops, within 1.9 ulp), told
-    what the caller knows of the arguments (see there; ``torch.atan2`` ignores it).
+    """``torch.atan2(y, x)``; in the compiled kernels' own graphs of float32 CPU tensors,
+    :func:`polynomial_atan2` (2x faster in inductor's loops, within 1.9 ulp), told what the caller
+    knows of the arguments (see there; ``torch.atan2`` ignores it).
 
-    Not where a gradient is recorded: ``torch.atan2``'s derivative is exact, the polynomial's,
-    through ``min``/``max``, would be 0 on the diagonal ``|x| = |y|``. Not in a user's own
+    Where a gradient is recorded, the polynomial's value with ``torch.atan2``'s exact derivative
+    (:class:`_PolynomialAtan2`): the polynomial's own, through ``min``/``max``, is 0 on the diagonal
+    ``|x| = |y|``. Inductor calls SLEEF's ``atan2`` out of line, which spills every vector register
+    of the loop: the polynomial took 0.88x the time of the compiled quaternion distance's training
+    graph at 1e6 rows, 0.95x the matrix distance's (``docs/bench_profile.md``). Not in a user's own
     ``torch.compile`` of code that calls torchquat: inductor inlines the polynomial into every
     reader of its result, which multiplied the kernels' compile time by 5-17 with the default
     options (the kernels' graphs are compiled with ``realize_cpu_opcount_threshold``; see
     ``_dispatch``)."""
     if (out is None and torch.compiler.is_compiling() and y.dtype == torch.float32 and y.is_cpu
-            and not (torch.is_grad_enabled() and (y.requires_grad or x.requires_grad))
             and _in_polynomial_atan2_kernel()):
-        return polynomial_atan2(y, x, y_nonnegative, x_nonnegative, special_values)
+        if not (torch.is_grad_enabled() and (y.requires_grad or x.requires_grad)):
+            return polynomial_atan2(y, x, y_nonnegative, x_nonnegative, special_values)
+        if TRAINING_POLYNOMIAL:
+            return _PolynomialAtan2.apply(y, x, y_nonnegative, x_nonnegative, special_values)
     return torch.atan2(y, x, out=out)
+
+
+TRAINING_POLYNOMIAL = True  # (False: training graphs call torch.atan2, for an A/B in one process)
+
+
+class _PolynomialAtan2(torch.autograd.Function):
+    """:func:`polynomial_atan2`'s value with ``torch.atan2``'s derivative, by the same formula
+    (``atan2_backward``: ``grad * x / (y^2 + x^2)``, ``grad * -y / (y^2 + x^2)``), so that a training
+    graph's gradients are those of its ``torch.atan2``. Saves only ``y`` and ``x``: inductor's
+    partitioner recomputes them in the backward's loop from the kernel's inputs."""
+
+    @staticmethod
+    def forward(y, x, y_nonnegative, x_nonnegative, special_values):
+        return polynomial_atan2(y, x, y_nonnegative, x_nonnegative, special_values)
+
+    @staticmethod
+    def setup_context(ctx, inputs, output):
+        ctx.save_for_backward(inputs[0], inputs[1])
+
+    @staticmethod
+    def backward(ctx, grad):
+        y, x = ctx.saved_tensors
+        recip = (y * y + x * x).reciprocal()
+        return grad * x * recip, grad * -y * recip, None, None, None
 
 
 # cos and sin up to a common sign, for rotations built from half angles (a quaternion and its

@@ -102,7 +102,7 @@ def axis_angle_to_quat_unchecked(v: Tensor) -> Tensor:
     if is_small(v, 3, share=0.1875) or (is_small(v, 3, share=0.25) and not closed_form.records_graph((v,))):
         return closed_form.apply(_AXIS_ANGLE_TO_QUAT, v)
     if torch.compiler.is_compiling():
-        return _axis_angle_to_quat_columnwise(v)
+        return _AXIS_ANGLE_TO_QUAT_TRACED(v)
     return closed_form.apply(_AXIS_ANGLE_TO_QUAT_COLUMNWISE, v)
 
 
@@ -189,7 +189,7 @@ _QUAT_TO_AXIS_ANGLE = jacobian_rule(_quat_to_axis_angle_small, _quat_to_axis_ang
         one_row=OneRow("quat_to_axis_angle", (4,), (3,)))
 def quat_to_axis_angle_unchecked(q: Tensor) -> Tensor:
     if torch.compiler.is_compiling():
-        return _quat_to_axis_angle_columnwise(q)
+        return _QUAT_TO_AXIS_ANGLE_TRACED(q)
     if is_small(q, 4, share=0.125, gpu_share=4):  # closed form vs autograd: crossover measured near 700 rows
         return closed_form.apply(_QUAT_TO_AXIS_ANGLE, q)
     # with a gradient to record, the columns' closed form beats the table's autograd from here
@@ -259,6 +259,7 @@ def _axis_angle_to_quat_columnwise_backward(grad: Tensor, inputs, saved):
 _AXIS_ANGLE_TO_QUAT_COLUMNWISE = Rule(_axis_angle_to_quat_columnwise, _axis_angle_to_quat_columnwise_parts,
                                       _axis_angle_to_quat_columnwise_backward,
                                       lambda v: _axis_angle_to_quat_columnwise_parts(v, values=True)[0])
+_AXIS_ANGLE_TO_QUAT_TRACED = closed_form.traced_rule(_AXIS_ANGLE_TO_QUAT_COLUMNWISE)
 
 
 def _quat_to_axis_angle_columnwise_parts(q: Tensor, for_autograd: bool = False):
@@ -312,6 +313,7 @@ def _quat_to_axis_angle_columnwise_backward(grad: Tensor, inputs, saved):
 _QUAT_TO_AXIS_ANGLE_COLUMNWISE = Rule(_quat_to_axis_angle_columnwise, _quat_to_axis_angle_columnwise_parts,
                                       _quat_to_axis_angle_columnwise_backward,
                                       lambda q: _quat_to_axis_angle_columnwise_parts(q)[0])
+_QUAT_TO_AXIS_ANGLE_TRACED = closed_form.traced_rule(_QUAT_TO_AXIS_ANGLE_COLUMNWISE)
 
 
 def quat_to_axis_angle(q: Tensor) -> Tensor:

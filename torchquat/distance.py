@@ -8,7 +8,7 @@ from ._closed_form import Rule
 from ._dispatch import kernel
 from ._one_row import OneRow
 from ._polynomials import atan2
-from ._math import constant, is_small, norm_twice_differentiable, safe_sqrt, sum_of_products, sum_of_squares, zero_to_inf
+from ._math import constant, is_small, literal, norm_twice_differentiable, safe_sqrt, sum_of_products, sum_of_squares, zero_to_inf
 from ._planes import columns, planar, plane_buffer, rows, slot
 from ._validation import prepare_pair, restore
 
@@ -73,7 +73,7 @@ def quat_geodesic_distance_unchecked(q1: Tensor, q2: Tensor) -> Tensor:
     if is_small(q1, 4) and is_small(q2, 4):
         return closed_form.apply(_QUAT_DISTANCE, q1, q2)
     if torch.compiler.is_compiling():
-        return _quat_distance_columnwise(q1, q2)
+        return _QUAT_DISTANCE_TRACED(q1, q2)
     return closed_form.apply(_QUAT_DISTANCE_COLUMNWISE, q1, q2)
 
 
@@ -156,6 +156,9 @@ _QUAT_DISTANCE_COLUMNWISE = Rule(_quat_distance_columnwise, _quat_distance_colum
                                  lambda q1, q2: _quat_distance_columnwise_parts(q1, q2)[0])
 
 
+_QUAT_DISTANCE_TRACED = closed_form.traced_rule(_QUAT_DISTANCE_COLUMNWISE)
+
+
 def quat_geodesic_distance(q1: Tensor, q2: Tensor) -> Tensor:
     """Angle of the rotation between two quaternions, sign-invariant (``q`` and ``-q`` agree).
 
@@ -193,8 +196,8 @@ def quat_geodesic_distance(q1: Tensor, q2: Tensor) -> Tensor:
 @kernel(blocked_row_dims=(2, 2), compiled_from_rows=1_024, polynomial_atan2=True,
         one_row=OneRow("matrix_geodesic_distance", (9, 9), ()))
 def matrix_geodesic_distance_unchecked(R1: Tensor, R2: Tensor) -> Tensor:
-    if torch.compiler.is_compiling():  # (the closed-form backward compiled: 31 ms against 32, not kept)
-        return _matrix_distance_columnwise(R1, R2)
+    if torch.compiler.is_compiling():
+        return _MATRIX_DISTANCE_TRACED(R1, R2)
     if planar(R1, 9, _MATRIX_PLANAR_SHARE) or planar(R2, 9, _MATRIX_PLANAR_SHARE):
         return closed_form.apply(_MATRIX_DISTANCE_COLUMNWISE, R1, R2)
     if R1.dim() != R2.dim():  # linalg.cross broadcasts batch dims but needs equal ranks
@@ -254,7 +257,7 @@ def _times_matrix(factors, X, transpose: bool):
     side by side (written into a ``plane_buffer`` where there is one)."""
     buffer = plane_buffer(9, [*factors, *X], _MATRIX_PLANAR_SHARE)
     out = []
-    for terms in _DISTANCE_TERMS[transpose]:
+    for terms in literal(_DISTANCE_TERMS[transpose]):  # (read as literals of a trace, not its inputs)
         (_, k, m), rest = terms[0], terms[1:]
         for j in range(3):
             total = factors[k] * X[3 * m + j]
@@ -282,6 +285,9 @@ def _matrix_distance_columnwise_backward(grad: Tensor, inputs, saved):
 _MATRIX_DISTANCE_COLUMNWISE = Rule(_matrix_distance_columnwise, _matrix_distance_columnwise_parts,
                                    _matrix_distance_columnwise_backward,
                                    lambda R1, R2: _matrix_distance_columnwise_parts(R1, R2)[0])
+
+
+_MATRIX_DISTANCE_TRACED = closed_form.traced_rule(_MATRIX_DISTANCE_COLUMNWISE)
 
 
 def matrix_geodesic_distance(R1: Tensor, R2: Tensor) -> Tensor:

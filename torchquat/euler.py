@@ -27,7 +27,7 @@ from ._euler_forms import (COLUMNWISE, MATRIX_TO_EULER_COLUMNWISE, PAIRS, QUAT_T
                            QUAT_TO_EULER_PLANAR_SHARE, angles_columnwise, lock_columnwise, matrix_lock_columnwise,
                            matrix_to_euler_columnwise, quat_lock_planar)
 from ._euler_small import euler_angles, lock, matrix_layout, quat_layout
-from ._euler_rotations import (EULER_TO_MATRIX, EULER_TO_QUAT, EULER_TO_QUAT_COLUMNWISE, euler_to_matrix_small,
+from ._euler_rotations import (EULER_TO_MATRIX, EULER_TO_QUAT, EULER_TO_QUAT_COLUMNWISE, EULER_TO_QUAT_TRACED, euler_to_matrix_small,
                                euler_to_quat_columnwise)
 from ._math import combine, constant, is_small, literal
 from ._planes import columns, planar
@@ -46,7 +46,7 @@ def euler_to_quat_unchecked(angles: Tensor, convention: EulerConvention) -> Tens
     # than the tables at 1,024 rows, even at 512; the tables' forward leads by 10% up to ~1,500)
     if not is_small(angles, 3, share=0.125, gpu_share=0.25):
         if torch.compiler.is_compiling():
-            return euler_to_quat_columnwise(angles, convention)
+            return EULER_TO_QUAT_TRACED(angles, convention=convention)
         return closed_form.apply(EULER_TO_QUAT_COLUMNWISE, angles, convention=convention)
     return closed_form.apply(EULER_TO_QUAT, angles, convention=convention)
 

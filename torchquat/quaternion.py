@@ -76,6 +76,7 @@ def _product_columnwise_backward(grad: Tensor, inputs, saved):
 
 _PRODUCT_COLUMNWISE = Rule(_product_columnwise, _product_columnwise_parts, _product_columnwise_backward,
                            _product_columnwise)
+_PRODUCT_TRACED = closed_form.traced_rule(_PRODUCT_COLUMNWISE)
 
 
 @kernel(blocked_row_dims=(1, 1), compiled_from_rows=8_192, one_row=OneRow("hamilton_product", (4, 4), (4,)))
@@ -84,7 +85,7 @@ def hamilton_product(p: Tensor, q: Tensor) -> Tensor:
     if is_small(p, 4, gpu_share=4) and is_small(q, 4, gpu_share=4):
         return contract(outer_product(p, q), "product", _PRODUCT)
     if torch.compiler.is_compiling():
-        return _product_columnwise(p, q)
+        return _PRODUCT_TRACED(p, q)
     return closed_form.apply(_PRODUCT_COLUMNWISE, p, q)
 
 

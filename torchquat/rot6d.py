@@ -60,7 +60,7 @@ _ROT6D = Rule(_rot6d_small, _rot6d_parts, _rot6d_backward)
 def rot6d_to_matrix_unchecked(x: Tensor) -> Tensor:
     if not is_small(x, 6, share=0.4375, gpu_share=4):  # the columns from 1,793 rows: 0.73-0.78x the table's time at 4,096
         if torch.compiler.is_compiling():
-            return _rot6d_columnwise(x)
+            return _ROT6D_TRACED(x)
         return closed_form.apply(_ROT6D_COLUMNWISE, x)
     return closed_form.apply(_ROT6D, x)
 
@@ -129,6 +129,7 @@ def _rot6d_columnwise_backward(grad: Tensor, inputs, saved):
 
 _ROT6D_COLUMNWISE = Rule(_rot6d_columnwise, _rot6d_columnwise_parts, _rot6d_columnwise_backward,
                          lambda x: _rot6d_columnwise_parts(x, values=True)[0])
+_ROT6D_TRACED = closed_form.traced_rule(_ROT6D_COLUMNWISE)
 
 
 def rot6d_to_matrix(x: Tensor) -> Tensor:
