@@ -27,8 +27,8 @@ from ._euler_forms import (COLUMNWISE, MATRIX_TO_EULER_COLUMNWISE, PAIRS, QUAT_T
                            QUAT_TO_EULER_PLANAR_SHARE, angles_columnwise, lock_columnwise, matrix_lock_columnwise,
                            matrix_to_euler_columnwise, quat_lock_planar)
 from ._euler_small import euler_angles, lock, matrix_layout, quat_layout
-from ._euler_rotations import (EULER_TO_MATRIX, EULER_TO_QUAT, EULER_TO_QUAT_COLUMNWISE, EULER_TO_QUAT_TRACED, euler_to_matrix_small,
-                               euler_to_quat_columnwise)
+from ._euler_rotations import (EULER_TO_MATRIX, EULER_TO_QUAT, EULER_TO_QUAT_COLUMNWISE, EULER_TO_QUAT_TRACED,
+                               euler_to_matrix_small)
 from ._math import combine, constant, is_small, literal
 from ._planes import columns, planar
 from ._validation import prepare, restore, tensor_or_as_is
