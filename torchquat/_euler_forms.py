@@ -18,7 +18,7 @@ from typing import Optional
 import torch
 from torch import Tensor
 
-from ._closed_form import Rule
+from ._closed_form import Rule, traced_rule
 from ._math import bilinear, bilinear_terms, constant, literal, safe_sqrt, sparse_columns, zero_to_inf
 from ._polynomials import atan2
 from ._planes import columns, combinations, plane_buffer, rows, slot
@@ -206,7 +206,7 @@ def angles_parts(forms, conv: EulerConvention, eps: float, abcd2, out: Optional[
     near_zero = z >= 0 if conv.symmetric else z <= 0  # |ab| >= |cd|: the small path's test
     tb = forms_tables(conv.name)[3]
     if torch.compiler.is_compiling():  # (inductor's where is a branch-free blend)
-        weight = None
+        weight = near_zero.to(z.dtype)  # (for a traced rule's backward; a graph that does not read it drops it)
 
         def pick(if_near_zero, if_near_pi):
             return torch.where(near_zero, if_near_zero, if_near_pi)
@@ -410,3 +410,4 @@ def _matrix_to_euler_columnwise_backward(grad: Tensor, inputs, saved, convention
 MATRIX_TO_EULER_COLUMNWISE = Rule(matrix_to_euler_columnwise, _matrix_to_euler_columnwise_parts,
                                    _matrix_to_euler_columnwise_backward,
                                    lambda R, convention, eps: _matrix_to_euler_columnwise_parts(R, convention, eps, values=True)[0])
+MATRIX_TO_EULER_TRACED = traced_rule(MATRIX_TO_EULER_COLUMNWISE)

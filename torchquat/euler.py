@@ -23,9 +23,9 @@ from . import _closed_form as closed_form
 from ._dispatch import kernel
 from ._one_row import OneRow
 from ._polynomials import DIRECT_EULER_ANGLES
-from ._euler_forms import (COLUMNWISE, MATRIX_TO_EULER_COLUMNWISE, PAIRS, QUAT_TO_EULER_PLANAR,
+from ._euler_forms import (COLUMNWISE, MATRIX_TO_EULER_COLUMNWISE, MATRIX_TO_EULER_TRACED, PAIRS, QUAT_TO_EULER_PLANAR,
                            QUAT_TO_EULER_PLANAR_SHARE, angles_columnwise, lock_columnwise, matrix_lock_columnwise,
-                           matrix_to_euler_columnwise, quat_lock_planar)
+                           quat_lock_planar)
 from ._euler_small import euler_angles, lock, matrix_layout, quat_layout
 from ._euler_rotations import (EULER_TO_MATRIX, EULER_TO_QUAT, EULER_TO_QUAT_COLUMNWISE, EULER_TO_QUAT_TRACED,
                                euler_to_matrix_small)
@@ -228,7 +228,7 @@ def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Option
 def matrix_to_euler_unchecked(R: Tensor, convention: EulerConvention, eps: float) -> Tensor:
     if not _matrix_euler_small(R):
         if torch.compiler.is_compiling():
-            return matrix_to_euler_columnwise(R, convention, eps)
+            return MATRIX_TO_EULER_TRACED(R, convention=convention, eps=eps)
         return closed_form.apply(MATRIX_TO_EULER_COLUMNWISE, R, convention=convention, eps=eps)
     return euler_angles(R, convention, eps, is_matrix=True)
 
