@@ -2,8 +2,9 @@
 loops vectorise where SLEEF's functions cost more than the rest of a kernel: taken only in the
 compiled kernels' own float32 CPU graphs (``torchquat._dispatch`` marks those calls in
 :data:`KERNEL_CALL`), never eagerly or in a user's own ``torch.compile``; ``cos`` and ``sin`` only
-where no gradient is recorded, ``atan2`` in training graphs too, with ``torch.atan2``'s derivative. See ``docs/bench_profile.md``, "A polynomial ``atan2``" and "A polynomial cos
-and sin"."""
+where no gradient is recorded, ``atan2`` in training graphs too, with ``torch.atan2``'s derivative.
+See ``docs/bench_profile.md``, "A polynomial ``atan2``", "A polynomial cos and sin" and "Training
+graphs"."""
 
 import math
 import threading
@@ -136,8 +137,8 @@ TRAINING_POLYNOMIAL = True  # (False: training graphs call torch.atan2, for an A
 class _PolynomialAtan2(torch.autograd.Function):
     """:func:`polynomial_atan2`'s value with ``torch.atan2``'s derivative, by the same formula
     (``atan2_backward``: ``grad * x / (y^2 + x^2)``, ``grad * -y / (y^2 + x^2)``), so that a training
-    graph's gradients are those of its ``torch.atan2``. Saves only ``y`` and ``x``: inductor's
-    partitioner recomputes them in the backward's loop from the kernel's inputs."""
+    graph's gradients are those of its ``torch.atan2``. Saves only ``y`` and ``x`` (which inductor's
+    partitioner may recompute from the kernel's inputs in the backward's loop)."""
 
     @staticmethod
     def forward(y, x, y_nonnegative, x_nonnegative, special_values):
