@@ -433,7 +433,7 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
     @functools.wraps(fn)
     def dispatch(*tensors, **static):
         if one_row is not None:
-            out = _one_row.run(one_row, fn, tensors, static)
+            out = _one_row.run(one_row, fn, *tensors, **static)
             if out is not None:
                 return out
         if _any_autocast() and torch.is_autocast_enabled(device := tensors[0].device.type):
@@ -472,12 +472,11 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
 
     dispatch.eager = fn
     if one_row is not None:
-        def at_one_row(*tensors, **static) -> Optional[Tensor]:
-            # A public function's first step: its arguments as given, before validation, since
-            # run() accepts only what validation would pass unchanged (plain CPU float32/float64
-            # tensors of one row each, of the row's shape, of one dtype); None for anything else
-            # (then the public function validates, with its errors, and calls the kernel).
-            return _one_row.run(one_row, fn, tensors, static)
-
+        # A public function's first step, ``at_one_row(*tensors, **static)``: its arguments as
+        # given, before validation, since run() accepts only what validation would pass unchanged
+        # (plain CPU float32/float64 tensors of one row each, of the row's shape, of one dtype);
+        # None for anything else (then the public function validates, with its errors, and calls
+        # the kernel). (A partial: no Python frame of its own.)
+        at_one_row = functools.partial(_one_row.run, one_row, fn)
         dispatch.at_one_row = at_one_row
     return dispatch

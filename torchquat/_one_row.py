@@ -87,17 +87,28 @@ def _flat(t: Tensor, size: int):
     """The one row of ``t`` as a list of floats, and ``t``'s number of batch dims; ``None`` unless
     ``t``, of ``size`` entries, is a ``(1, ..., 1, size)`` row, a ``(1, ..., 1, 3, 3)`` matrix for
     ``size`` 9 (read row-major), or for ``size`` 1 any shape (one number per row: slerp's ``t``)."""
-    if size == 1:
-        batch_dims = t.dim()
-    else:
-        shape = t.shape  # (a public function's input is not yet validated: a (2, 2) "quaternion")
-        if not shape or shape[-1] != (3 if size == 9 else size) or size == 9 and (len(shape) < 2 or shape[-2] != 3):
+    # (a public function's input is not yet validated: a (2, 2) "quaternion"; each branch reads
+    # the shape once, since every attribute read and Size index is a good part of this call's cost)
+    shape = t.shape
+    dims = len(shape)
+    if size == 9:
+        if dims < 2 or shape[-1] != 3 or shape[-2] != 3:
             return None
-        batch_dims = len(shape) - (2 if size == 9 else 1)
+        values = t.tolist()
+        for _ in range(dims - 2):
+            values = values[0]
+        return values[0] + values[1] + values[2], dims - 2
+    if size == 1:
+        values = t.tolist()
+        for _ in range(dims):
+            values = values[0]
+        return [values], dims
+    if not dims or shape[-1] != size:
+        return None
     values = t.tolist()
-    for _ in range(batch_dims):
+    for _ in range(dims - 1):
         values = values[0]
-    return ([values] if size == 1 else values[0] + values[1] + values[2] if size == 9 else values), batch_dims
+    return values, dims - 1
 
 
 def _tensor(values, numpy_dtype, shape: tuple) -> Tensor:
@@ -112,7 +123,7 @@ def _tensor(values, numpy_dtype, shape: tuple) -> Tensor:
 _apply_node = None
 
 
-def run(one_row: OneRow, kernel: Callable, tensors: Sequence[Tensor], static) -> Optional[Tensor]:
+def run(one_row: OneRow, kernel: Callable, *tensors: Tensor, **static) -> Optional[Tensor]:
     """``one_row``'s formula on ``tensors`` of one row each, as a tensor of their dtype and batch
     shape (with its gradient node where autograd records), or ``None`` where the tensor kernel must
     run instead (see the module docstring). ``kernel``: the tensor kernel, for double backward."""
@@ -140,10 +151,12 @@ def run(one_row: OneRow, kernel: Callable, tensors: Sequence[Tensor], static) ->
         if row is None:
             return None
         values, dims = row
-        records = records or t.requires_grad
+        if t.requires_grad:
+            records = True
         total += sum(values)
         rows.append(values)
-        batch_dims = max(batch_dims, dims)
+        if dims > batch_dims:
+            batch_dims = dims
     if not _isfinite(total):  # (a sum is finite only if every term is: NaN and inf take the tensor kernel's way)
         return None
     shape = (1,) * batch_dims + one_row.out_shape
