@@ -32,7 +32,7 @@ input, an exception from ``math`` (a zero quaternion's division, say), a row a f
 import math
 import os
 import sys
-from typing import Callable, NamedTuple, Optional, Sequence, Tuple
+from typing import Callable, NamedTuple, Optional, Tuple
 
 import numpy
 import torch
