@@ -399,3 +399,71 @@ def test_a_closed_form_rules_compiled_gradients_sum_over_broadcast_batch_dims(na
     torch.testing.assert_close(out, ref, rtol=0, atol=2e-6)
     for g, ref_g in zip(grads, ref_grads):
         torch.testing.assert_close(g, ref_g, rtol=1e-5, atol=2e-5)
+
+
+# kernels made of two others through the quaternion (_dispatch.compiled_without_gradient)
+COMPOSITE_KERNELS = ["euler_to_matrix[zxz]", "euler_to_matrix[XYZ]", "axis_angle_to_matrix", "matrix_to_axis_angle"]
+
+
+def _stacks_read(gm) -> int:
+    """How many ``torch.stack`` results a traced graph reads (dynamo keeps unread ones)."""
+    return sum(node.target is torch.stack and len(node.users) > 0 for node in gm.graph.nodes)
+
+
+@pytest.mark.parametrize("name", COMPOSITE_KERNELS)
+def test_composite_kernels_traces_without_a_gradient_pass_the_quaternions_columns_on(name, compiled, monkeypatch):
+    # The stack of the quaternion between the two formulas is an (N, 4) buffer inductor writes in
+    # one loop and reads back in a second; without it the kernel is one loop. Training traces keep
+    # the two kernels (each with its closed-form rule), with the switch on or off.
+    import torchquat._dispatch as dispatch
+
+    fn, generic, _ = ALL[name]
+    inputs = generic()  # (made first: they may come from compiled kernels too)
+    stacks = {}
+
+    def backend(gm, example_inputs):
+        stacks[current] = _stacks_read(gm)
+        return gm.forward
+
+    monkeypatch.setattr(dispatch, "_backend", backend)
+    for fused in (True, False):
+        monkeypatch.setattr(dispatch, "FUSED_COMPOSITES", fused)
+        monkeypatch.setattr(dispatch, "_compiled", {})
+        torch._dynamo.reset()
+        leaves = tuple(x.detach().clone().requires_grad_() for x in inputs)
+        current = fused, "grad"
+        fn(*leaves)
+        current = fused, "no grad"
+        with torch.no_grad():
+            fn(*leaves)
+    assert stacks[True, "no grad"] == stacks[False, "no grad"] - 1 >= 1, stacks
+    assert stacks[True, "grad"] == stacks[False, "grad"], stacks
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])  # (float32: the polynomial cos, sin, atan2)
+@pytest.mark.parametrize("name", COMPOSITE_KERNELS)
+def test_composite_kernels_in_one_loop_agree_with_two_loops_and_with_eager(name, dtype, compiled, monkeypatch):
+    # One loop lets the C++ compiler contract multiply-adds across the two formulas: float32
+    # matrices may move by an ulp or two, never further, and NaN where two loops give NaN
+    import torchquat._dispatch as dispatch
+
+    fn, generic, singular = ALL[name]
+    inputs = [tuple(x.to(dtype) for x in make()) for make in (generic, singular)]
+    outputs = {}
+    with torch.no_grad():
+        for fused in (True, False):
+            monkeypatch.setattr(dispatch, "FUSED_COMPOSITES", fused)
+            monkeypatch.setattr(dispatch, "_compiled", {})
+            torch._dynamo.reset()
+            outputs[fused] = [fn(*x) for x in inputs]
+        tq.use_compiled_kernels(False)
+        try:
+            exact = [fn(*(t.double() for t in x)) for x in inputs]
+        finally:
+            tq.use_compiled_kernels(True)
+    eps = torch.finfo(dtype).eps
+    for one_loop, two_loops, ref in zip(outputs[True], outputs[False], exact):
+        assert torch.equal(one_loop.isnan(), two_loops.isnan()) and torch.equal(one_loop.isnan(), ref.isnan())
+        torch.testing.assert_close(one_loop, two_loops, rtol=0, atol=4 * eps, equal_nan=True)
+        torch.testing.assert_close(one_loop.double(), ref, rtol=0, atol=64 * eps, equal_nan=True)

@@ -10,14 +10,14 @@ from torch import Tensor
 
 from . import _closed_form as closed_form
 from ._closed_form import Rule, jacobian_rule
-from ._dispatch import kernel
+from ._dispatch import compiled_without_gradient, kernel
 from ._one_row import OneRow
 from ._math import (HALF_IDENTITY, constant, contract, copysign, is_small, outer_product, small_angle_threshold,
                     sum_of_products, sum_of_squares)
 from ._polynomials import DIRECT_ROTATION_VECTOR_ENTRIES, atan2, cos_sin_up_to_sign, cos_sinc_of_squares
 from ._planes import columns, plane_buffer, rows, slot
 from ._validation import prepare, restore
-from .matrix import HOMOGENEOUS, matrix_to_quat_unchecked, quat_to_matrix_unchecked
+from .matrix import HOMOGENEOUS, _shepperd_columnwise, matrix_to_quat_unchecked, quat_columns_to_matrix, quat_to_matrix_unchecked
 
 __all__ = ["axis_angle_to_quat", "quat_to_axis_angle", "axis_angle_to_matrix", "matrix_to_axis_angle"]
 
@@ -265,11 +265,12 @@ _AXIS_ANGLE_TO_QUAT_TRACED = closed_form.traced_rule(_AXIS_ANGLE_TO_QUAT_COLUMNW
 def _quat_to_axis_angle_columnwise_parts(q: Tensor, for_autograd: bool = False):
     """The rotation vector column by column, and what the closed-form backward needs.
     ``for_autograd`` (the plain forward): the series branch's rows get substitutes that keep
-    autograd away from 0 / 0; otherwise a NaN in a branch that ``where`` drops is harmless."""
-    w0, *u = columns(q)
+    autograd away from 0 / 0; otherwise a NaN in a branch that ``where`` drops is harmless.
+    ``q``: quaternions, or a list of their four columns (a composite kernel's trace)."""
+    w0, *u = q if isinstance(q, list) else columns(q)
     n2 = sum_of_squares(u)
     w = w0.abs()
-    small = torch.addcmul(n2, w, w, value=-torch.finfo(q.dtype).eps) <= 0  # n^2 <= eps w^2
+    small = torch.addcmul(n2, w, w, value=-torch.finfo(w0.dtype).eps) <= 0  # n^2 <= eps w^2
     if for_autograd:
         n, inverse = torch.sqrt(torch.where(small, 1.0, n2)), torch.reciprocal(torch.where(small, w, 1.0))
     else:
@@ -371,11 +372,16 @@ def axis_angle_to_matrix_unchecked(v: Tensor) -> Tensor:
     # the chained Jacobian), many through the two kernels.
     if is_small(v, 3, share=0.25):
         return closed_form.apply(_AXIS_ANGLE_TO_MATRIX, v)
+    if compiled_without_gradient(v):  # (the quaternion's columns passed on: one loop)
+        _, (*h, _, w, s) = _axis_angle_to_quat_columnwise_parts(v, for_autograd=True)
+        return quat_columns_to_matrix([w] + [c * s for c in h])
     return quat_to_matrix_unchecked(axis_angle_to_quat_unchecked(v))
 
 
 @kernel(blocked_row_dims=(2,), polynomial_atan2=True, one_row=OneRow("matrix_to_axis_angle", (9,), (3,)))
 def matrix_to_axis_angle_unchecked(R: Tensor) -> Tensor:
+    if compiled_without_gradient(R):  # (Shepperd's quaternion's columns passed on: one loop)
+        return _quat_to_axis_angle_columnwise_parts(_shepperd_columnwise(R, as_columns=True), for_autograd=True)[0]
     return quat_to_axis_angle_unchecked(matrix_to_quat_unchecked(R))
 
 

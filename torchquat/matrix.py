@@ -93,7 +93,14 @@ def quat_to_matrix_unchecked(q: Tensor) -> Tensor:
     if planar(q, 4, _PLANAR_SHARE):
         return closed_form.apply(_QUAT_TO_MATRIX_PLANAR, q)
     # Many (compiled: one fused loop): the outer product's (N, 16) buffer costs more than it saves.
-    w, x, y, z = q.unbind(-1)
+    return quat_columns_to_matrix(q.unbind(-1))
+
+
+def quat_columns_to_matrix(q) -> Tensor:
+    """:func:`quat_to_matrix_unchecked` of a quaternion's four columns ``(w, x, y, z)``: what a
+    compiled kernel that computes a quaternion first passes on, so that inductor fuses both into one
+    loop (a stack of the quaternion between them is an ``(N, 4)`` buffer written and read back)."""
+    w, x, y, z = q
     s = 2.0 / (w * w + x * x + y * y + z * z)
     xs, ys, zs = x * s, y * s, z * s
     wx, wy, wz = w * xs, w * ys, w * zs
@@ -206,11 +213,12 @@ def matrix_to_quat_unchecked(R: Tensor) -> Tensor:
     return _matrix_to_quat_small(R)
 
 
-def _shepperd_columnwise(R: Tensor) -> Tensor:
+def _shepperd_columnwise(R: Tensor, as_columns: bool = False):
     """:func:`matrix_to_quat_unchecked` column by column: for ``torch.compile``, which fuses it
     into one vectorised loop (a ``gather`` from a computed buffer would not fuse), and for large
     eager CPU batches (contiguous columns, the 10 sums in one matmul; 2.5x fewer passes than the
-    table path's argmax and gather)."""
+    table path's argmax and gather). ``as_columns``: the quaternion's four columns, not stacked
+    (:func:`torchquat._dispatch.compiled_without_gradient`'s traces pass them to the next formula)."""
     vals = columns(R.flatten(-2), _SHEPPERD, "shepperd", _SHEPPERD_OFFSET, _SHEPPERD_PLANAR_SHARE)
     compiling = torch.compiler.is_compiling()
     best, row = vals[0], [vals[i] for i in _SHEPPERD_ROWS[0]]
@@ -228,6 +236,8 @@ def _shepperd_columnwise(R: Tensor) -> Tensor:
                     torch.sign(w), alpha=8.0)  # standardize_sign's key: w >= 0, then the first non-zero
     scale = torch.rsqrt(sum_of_squares(row))
     scale = scale * (torch.where(key < 0, -1.0, 1.0) if compiling else torch.copysign(constant("one", 1.0, key), key))
+    if as_columns:
+        return [c * scale for c in row]
     buffer = plane_buffer(4, row, _SHEPPERD_PLANAR_SHARE)  # (forward only: autograd refuses out=)
     q = [torch.mul(c, scale, out=slot(buffer, i)) for i, c in enumerate(row)]
     return rows(q if buffer is None else buffer, share=_SHEPPERD_PLANAR_SHARE)
