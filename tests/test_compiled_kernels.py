@@ -467,3 +467,26 @@ def test_composite_kernels_in_one_loop_agree_with_two_loops_and_with_eager(name,
         assert torch.equal(one_loop.isnan(), two_loops.isnan()) and torch.equal(one_loop.isnan(), ref.isnan())
         torch.testing.assert_close(one_loop, two_loops, rtol=0, atol=4 * eps, equal_nan=True)
         torch.testing.assert_close(one_loop.double(), ref, rtol=0, atol=64 * eps, equal_nan=True)
+
+
+@pytest.mark.parametrize("widest", [512, 256, 128])
+def test_kernels_marked_for_256_bit_vectors_compile_with_them_only_where_the_cpu_has_wider(widest, compiled, monkeypatch):
+    # (inductor's simdlen names one width: on a CPU without it the loops would not be vectorised)
+    import torchquat._dispatch as dispatch
+
+    simdlen = {}
+
+    def compile_recording(fn, **kwargs):
+        simdlen[current] = (kwargs.get("options") or {}).get("cpp.simdlen")
+        return fn  # (runs the traced function eagerly)
+
+    marked = ["matrix_to_quat", "matrix_to_euler[xzy]", "rot6d_to_matrix", "quat_multiply"]
+    names = marked + ["quat_to_matrix", "euler_to_quat[ZYZ]", "matrix_to_axis_angle"]
+    inputs = {name: ALL[name][1]() for name in names}  # (made first: they may come from compiled kernels)
+    monkeypatch.setattr(torch, "compile", compile_recording)
+    monkeypatch.setattr(dispatch, "_backend", "inductor")
+    monkeypatch.setattr(dispatch, "_compiled", {})
+    monkeypatch.setattr(dispatch, "_widest_cpu_vectors", lambda: widest)
+    for current in names:
+        ALL[current][0](*inputs[current])
+    assert simdlen == {name: 256 if widest > 256 and name in marked else None for name in names}

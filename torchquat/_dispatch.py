@@ -94,6 +94,25 @@ def _polynomial_options() -> dict:
     return options
 
 
+# Kernels whose compiled CPU loops run faster on 256-bit vectors than on the 512-bit ones inductor
+# picks where the CPU has them (kernel(vector_bits=256)): measured on an AMD EPYC (Zen 4, which
+# splits each 512-bit operation in two), in-process A/B at 1e6 float32 rows, 20 rounds, forward /
+# with the backward: matrix -> Euler 0.74-0.79x / 0.94-0.98x, matrix -> quat 0.86x / 0.94x, 6D ->
+# matrix 0.92x / 0.88x, the product 0.85x / 0.90x. The others lose on 256 bits (Euler -> quat
+# 1.16x / 1.46x, quat -> Euler 1.18x / 1.30x), the distances and quat -> matrix are even. Not
+# measured on a CPU with full 512-bit units (an Intel Xeon).
+_VECTOR_BITS: Dict[Callable, int] = {}
+
+
+def _widest_cpu_vectors() -> int:
+    """The bit width of the vectors inductor's C++ code would use on this CPU (0 if unknown)."""
+    try:
+        from torch._inductor.cpu_vec_isa import pick_vec_isa
+        return pick_vec_isa().bit_width()
+    except Exception:  # (an older or newer torch without it: inductor's own choice stands)
+        return 0
+
+
 def _compiled_for(fn: Callable, static: Tuple, context: Tuple = (), polynomial: bool = False) -> Callable:
     """The compiled ``fn`` for its static options (sorted ``(name, value)`` pairs) and the call's
     ``context`` (grad, inference mode, dtype, and for some kernels whether cos and sin are
@@ -124,6 +143,9 @@ def _compiled_for(fn: Callable, static: Tuple, context: Tuple = (), polynomial: 
                 pass
             if polynomial and not context[0] and context[2] == torch.float32:
                 inductor_options.update(_polynomial_options())
+            bits = _VECTOR_BITS.get(fn)
+            if bits is not None and _widest_cpu_vectors() > bits:  # (never narrower than the CPU's own)
+                inductor_options["cpp.simdlen"] = bits
         compiled = _compiled[key] = torch.compile(_fresh_copy(bound, len(_compiled)), dynamic=True, fullgraph=True,
                                                      backend=_backend, options=inductor_options)
     return compiled
@@ -410,7 +432,7 @@ class _FirstOrder(torch.autograd.Function):
 
 def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[int, ...]] = None,
            compiled_from_rows: int = 0, polynomial_atan2: bool = False, polynomial_sincos: float = 0.0,
-           one_row: Optional[_one_row.OneRow] = None) -> Callable:
+           one_row: Optional[_one_row.OneRow] = None, vector_bits: Optional[int] = None) -> Callable:
     """Mark an unchecked kernel ``fn(*tensors, **static_options)`` as compilable.
 
     Static options (an Euler convention, an ``eps``) are bound before compiling, so each
@@ -442,11 +464,16 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
     ``torchquat._one_row``). The kernel then also has ``at_one_row(*tensors, **static)``, the same
     for a public function's unvalidated arguments, or ``None``: validation's 3-5 us were a quarter
     to a third of a one-row call's time.
+
+    ``vector_bits`` (256): the kernel's compiled CPU graphs use vectors of at most that many bits
+    where inductor would take wider ones (see ``_VECTOR_BITS``).
     """
     if fn is None:
         return functools.partial(kernel, blocked_row_dims=blocked_row_dims, compiled_from_rows=compiled_from_rows,
                                  polynomial_atan2=polynomial_atan2, polynomial_sincos=polynomial_sincos,
-                                 one_row=one_row)
+                                 one_row=one_row, vector_bits=vector_bits)
+    if vector_bits is not None:
+        _VECTOR_BITS[fn] = vector_bits
 
     @functools.wraps(fn)
     def dispatch(*tensors, **static):

@@ -226,7 +226,7 @@ def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Option
     return restore(to_degrees(angles, check_degrees("quat_to_euler", degrees)), dtype)
 
 
-@kernel(blocked_row_dims=(2,), polynomial_atan2=True, one_row=OneRow("matrix_to_euler", (9,), (3,)))
+@kernel(blocked_row_dims=(2,), polynomial_atan2=True, one_row=OneRow("matrix_to_euler", (9,), (3,)), vector_bits=256)
 def matrix_to_euler_unchecked(R: Tensor, convention: EulerConvention, eps: float) -> Tensor:
     if not _matrix_euler_small(R):
         if torch.compiler.is_compiling():

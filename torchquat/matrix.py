@@ -196,7 +196,7 @@ def _matrix_to_quat_with_jacobian(R: Tensor):
 _MATRIX_TO_QUAT = jacobian_rule(_matrix_to_quat_small, _matrix_to_quat_with_jacobian)
 
 
-@kernel(blocked_row_dims=(2,), compiled_from_rows=512, one_row=OneRow("matrix_to_quat", (9,), (4,)))
+@kernel(blocked_row_dims=(2,), compiled_from_rows=512, one_row=OneRow("matrix_to_quat", (9,), (4,)), vector_bits=256)
 def matrix_to_quat_unchecked(R: Tensor) -> Tensor:
     """Shepperd's method (1978), branch-free, returning ``w >= 0``.
 

@@ -79,7 +79,8 @@ _PRODUCT_COLUMNWISE = Rule(_product_columnwise, _product_columnwise_parts, _prod
 _PRODUCT_TRACED = closed_form.traced_rule(_PRODUCT_COLUMNWISE)
 
 
-@kernel(blocked_row_dims=(1, 1), compiled_from_rows=8_192, one_row=OneRow("hamilton_product", (4, 4), (4,)))
+@kernel(blocked_row_dims=(1, 1), compiled_from_rows=8_192, one_row=OneRow("hamilton_product", (4, 4), (4,)),
+        vector_bits=256)
 def hamilton_product(p: Tensor, q: Tensor) -> Tensor:
     """Unchecked Hamilton product of prepared tensors (used internally)."""
     if is_small(p, 4, gpu_share=4) and is_small(q, 4, gpu_share=4):

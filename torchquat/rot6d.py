@@ -56,7 +56,7 @@ def _rot6d_backward(grad: Tensor, inputs, saved):
 _ROT6D = Rule(_rot6d_small, _rot6d_parts, _rot6d_backward)
 
 
-@kernel(blocked_row_dims=(1,), compiled_from_rows=512, one_row=OneRow("rot6d_to_matrix", (6,), (3, 3)))
+@kernel(blocked_row_dims=(1,), compiled_from_rows=512, one_row=OneRow("rot6d_to_matrix", (6,), (3, 3)), vector_bits=256)
 def rot6d_to_matrix_unchecked(x: Tensor) -> Tensor:
     if not is_small(x, 6, share=0.4375, gpu_share=4):  # the columns from 1,793 rows: 0.73-0.78x the table's time at 4,096
         if torch.compiler.is_compiling():
