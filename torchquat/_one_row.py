@@ -87,28 +87,24 @@ def _flat(t: Tensor, size: int):
     """The one row of ``t`` as a list of floats, and ``t``'s number of batch dims; ``None`` unless
     ``t``, of ``size`` entries, is a ``(1, ..., 1, size)`` row, a ``(1, ..., 1, 3, 3)`` matrix for
     ``size`` 9 (read row-major), or for ``size`` 1 any shape (one number per row: slerp's ``t``)."""
-    # (a public function's input is not yet validated: a (2, 2) "quaternion"; each branch reads
-    # the shape once, since every attribute read and Size index is a good part of this call's cost)
+    # (a public function's input is not yet validated: a (2, 2) "quaternion"; the shape is read once,
+    # since every attribute read and Size index is a good part of this call's cost)
     shape = t.shape
     dims = len(shape)
     if size == 9:
         if dims < 2 or shape[-1] != 3 or shape[-2] != 3:
             return None
-        values = t.tolist()
-        for _ in range(dims - 2):
-            values = values[0]
-        return values[0] + values[1] + values[2], dims - 2
-    if size == 1:
-        values = t.tolist()
-        for _ in range(dims):
-            values = values[0]
-        return [values], dims
-    if not dims or shape[-1] != size:
+        batch_dims = dims - 2
+    elif size == 1:
+        batch_dims = dims
+    elif not dims or shape[-1] != size:
         return None
+    else:
+        batch_dims = dims - 1
     values = t.tolist()
-    for _ in range(dims - 1):
+    for _ in range(batch_dims):
         values = values[0]
-    return values, dims - 1
+    return ([values] if size == 1 else values[0] + values[1] + values[2] if size == 9 else values), batch_dims
 
 
 def _tensor(values, numpy_dtype, shape: tuple) -> Tensor:
