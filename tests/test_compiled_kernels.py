@@ -470,7 +470,7 @@ def test_composite_kernels_in_one_loop_agree_with_two_loops_and_with_eager(name,
 
 
 @pytest.mark.parametrize("widest", [512, 256, 128])
-def test_kernels_marked_for_256_bit_vectors_compile_with_them_only_where_the_cpu_has_wider(widest, compiled, monkeypatch):
+def test_kernels_marked_for_256_bit_vectors_get_them_only_where_the_cpu_has_wider(widest, compiled, monkeypatch):
     # (inductor's simdlen names one width: on a CPU without it the loops would not be vectorised)
     import torchquat._dispatch as dispatch
 

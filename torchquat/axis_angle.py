@@ -17,7 +17,8 @@ from ._math import (HALF_IDENTITY, constant, contract, copysign, is_small, outer
 from ._polynomials import DIRECT_ROTATION_VECTOR_ENTRIES, atan2, cos_sin_up_to_sign, cos_sinc_of_squares
 from ._planes import columns, plane_buffer, rows, slot
 from ._validation import prepare, restore
-from .matrix import HOMOGENEOUS, _shepperd_columnwise, matrix_to_quat_unchecked, quat_columns_to_matrix, quat_to_matrix_unchecked
+from .matrix import (HOMOGENEOUS, _shepperd_columnwise, matrix_to_quat_unchecked, quat_columns_to_matrix,
+                     quat_to_matrix_unchecked)
 
 __all__ = ["axis_angle_to_quat", "quat_to_axis_angle", "axis_angle_to_matrix", "matrix_to_axis_angle"]
 
