@@ -490,3 +490,29 @@ def test_kernels_marked_for_256_bit_vectors_get_them_only_where_the_cpu_has_wide
     for current in names:
         ALL[current][0](*inputs[current])
     assert simdlen == {name: 256 if widest > 256 and name in marked else None for name in names}
+
+
+def test_matrix_to_axis_angles_trace_without_a_gradient_passes_shepperds_raw_row_on(compiled, monkeypatch):
+    # The rotation vector depends on neither the quaternion's scale nor its sign: the no-gradient
+    # trace skips the normalisation (rsqrt) and the sign key (sign); a training trace keeps both
+    import torchquat._dispatch as dispatch
+
+    fn, generic, _ = ALL["matrix_to_axis_angle"]
+    inputs = generic()
+    targets = {}
+
+    def backend(gm, example_inputs):
+        targets[current] = [getattr(node.target, "__name__", str(node.target)) for node in gm.graph.nodes]
+        return gm.forward
+
+    monkeypatch.setattr(dispatch, "_backend", backend)
+    monkeypatch.setattr(dispatch, "_compiled", {})
+    torch._dynamo.reset()
+    leaves = tuple(x.detach().clone().requires_grad_() for x in inputs)
+    current = "grad"
+    fn(*leaves)
+    current = "no grad"
+    with torch.no_grad():
+        fn(*leaves)
+    for name in ("rsqrt", "sign"):
+        assert name not in targets["no grad"] and name in targets["grad"], (name, targets)

@@ -213,12 +213,13 @@ def matrix_to_quat_unchecked(R: Tensor) -> Tensor:
     return _matrix_to_quat_small(R)
 
 
-def _shepperd_columnwise(R: Tensor, as_columns: bool = False):
+def _shepperd_columnwise(R: Tensor, raw_columns: bool = False):
     """:func:`matrix_to_quat_unchecked` column by column: for ``torch.compile``, which fuses it
     into one vectorised loop (a ``gather`` from a computed buffer would not fuse), and for large
     eager CPU batches (contiguous columns, the 10 sums in one matmul; 2.5x fewer passes than the
-    table path's argmax and gather). ``as_columns``: the quaternion's four columns, not stacked
-    (:func:`torchquat._dispatch.compiled_without_gradient`'s traces pass them to the next formula)."""
+    table path's argmax and gather). ``raw_columns``: the four columns of the chosen row ``4 q_k q``
+    itself, neither normalised nor sign-standardised, for a next formula that depends on neither
+    (matrix -> axis-angle's traces, :func:`torchquat._dispatch.compiled_without_gradient`)."""
     vals = columns(R.flatten(-2), _SHEPPERD, "shepperd", _SHEPPERD_OFFSET, _SHEPPERD_PLANAR_SHARE)
     compiling = torch.compiler.is_compiling()
     best, row = vals[0], [vals[i] for i in _SHEPPERD_ROWS[0]]
@@ -231,13 +232,13 @@ def _shepperd_columnwise(R: Tensor, as_columns: bool = False):
             take = (vals[k] > best).to(best.dtype)
             best = torch.maximum(best, vals[k])
             row = [torch.lerp(r, vals[i], take) for i, r in zip(_SHEPPERD_ROWS[k], row)]
+    if raw_columns:  # (|row| = 4 |q_k| lies in [2, 4]: nothing to fear from its scale)
+        return row
     w, x, y, z = row
     key = torch.add(torch.add(torch.add(torch.sign(z), torch.sign(y), alpha=2.0), torch.sign(x), alpha=4.0),
                     torch.sign(w), alpha=8.0)  # standardize_sign's key: w >= 0, then the first non-zero
     scale = torch.rsqrt(sum_of_squares(row))
     scale = scale * (torch.where(key < 0, -1.0, 1.0) if compiling else torch.copysign(constant("one", 1.0, key), key))
-    if as_columns:
-        return [c * scale for c in row]
     buffer = plane_buffer(4, row, _SHEPPERD_PLANAR_SHARE)  # (forward only: autograd refuses out=)
     q = [torch.mul(c, scale, out=slot(buffer, i)) for i, c in enumerate(row)]
     return rows(q if buffer is None else buffer, share=_SHEPPERD_PLANAR_SHARE)
