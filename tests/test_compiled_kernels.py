@@ -516,3 +516,61 @@ def test_matrix_to_axis_angles_trace_without_a_gradient_passes_shepperds_raw_row
         fn(*leaves)
     for name in ("rsqrt", "sign"):
         assert name not in targets["no grad"] and name in targets["grad"], (name, targets)
+
+
+VALUE_FORM_KERNELS = ["matrix_to_euler[xzy]", "rot6d_to_matrix", "quat_geodesic_distance", "matrix_geodesic_distance"]
+
+
+@pytest.mark.parametrize("name", VALUE_FORM_KERNELS + ["axis_angle_to_quat"])
+def test_traces_without_a_gradient_take_the_rules_value_forms_with_the_same_numbers(name, compiled, monkeypatch):
+    # Where nothing records a gradient a traced rule runs its value form: no safe_sqrt blend, no
+    # (n - n) / n, no substitutes at gimbal lock. Axis-angle -> quat keeps its plain form there (the
+    # value form's cos and sin are torch's, not the compiled polynomials). Graphs run eagerly here,
+    # so the same numbers are the same bits, NaN rows included.
+    import torchquat._closed_form as closed_form
+    import torchquat._dispatch as dispatch
+
+    fn, generic, singular = ALL[name]
+    inputs = [tuple(x.to(dtype) for x in make()) for make in (generic, singular) for dtype in (torch.float32, torch.float64)]
+    traces, outputs = {}, {}
+
+    def backend(gm, example_inputs):
+        names = [getattr(node.target, "__name__", str(node.target)) for node in gm.graph.nodes]
+        traces.setdefault(current, []).append([n for n in names if n != "_are_functorch_transforms_active"])
+        return gm.forward
+
+    monkeypatch.setattr(dispatch, "_backend", backend)
+    for current in (True, False):
+        monkeypatch.setattr(closed_form, "TRACED_VALUES", current)
+        monkeypatch.setattr(dispatch, "_compiled", {})
+        monkeypatch.setattr(dispatch, "_sincos_guesses", {})  # (each variant traces the same graphs)
+        torch._dynamo.reset()
+        with torch.no_grad():
+            outputs[current] = [fn(*x) for x in inputs]
+    assert len(traces[True]) == len(traces[False]) >= 2
+    if name in VALUE_FORM_KERNELS:
+        assert all(len(v) < len(p) for v, p in zip(traces[True], traces[False])), traces
+    else:
+        assert traces[True] == traces[False]
+    for with_values, plain in zip(outputs[True], outputs[False]):
+        assert torch.equal(with_values.nan_to_num(), plain.nan_to_num()) and torch.equal(with_values.isnan(), plain.isnan())
+
+
+@pytest.mark.parametrize("name", ["quat_geodesic_distance", "matrix_geodesic_distance"])
+def test_a_users_compile_of_torch_func_grad_keeps_the_differentiable_forms(name):
+    # In a trace of torch.func.grad the inputs need not require a gradient; the value forms'
+    # plain sqrt would give NaN where the distance is 0 (the first row)
+    fn, _, _ = ALL[name]
+    first = tq.random_quat(2048, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    second = torch.cat([first[:1], tq.random_quat(2047, dtype=torch.float64, generator=torch.Generator().manual_seed(1))])
+    if name == "matrix_geodesic_distance":
+        first, second = tq.quat_to_matrix(first), tq.quat_to_matrix(second)
+
+    def total(x):
+        return fn(x, second).sum()
+
+    torch._dynamo.reset()
+    compiled = torch.compile(torch.func.grad(total), backend="eager", fullgraph=True, dynamic=True)(first)
+    assert torch.isfinite(compiled).all()
+    assert compiled[0].abs().max() == 0
+    torch.testing.assert_close(compiled, torch.func.grad(total)(first), rtol=0, atol=1e-12)

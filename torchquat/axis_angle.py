@@ -260,7 +260,8 @@ def _axis_angle_to_quat_columnwise_backward(grad: Tensor, inputs, saved):
 _AXIS_ANGLE_TO_QUAT_COLUMNWISE = Rule(_axis_angle_to_quat_columnwise, _axis_angle_to_quat_columnwise_parts,
                                       _axis_angle_to_quat_columnwise_backward,
                                       lambda v: _axis_angle_to_quat_columnwise_parts(v, values=True)[0])
-_AXIS_ANGLE_TO_QUAT_TRACED = closed_form.traced_rule(_AXIS_ANGLE_TO_QUAT_COLUMNWISE)
+# (its value form takes torch's cos and sin, where the plain one has the compiled polynomials)
+_AXIS_ANGLE_TO_QUAT_TRACED = closed_form.traced_rule(_AXIS_ANGLE_TO_QUAT_COLUMNWISE._replace(values=None))
 
 
 def _quat_to_axis_angle_columnwise_parts(q: Tensor, for_autograd: bool = False):
