@@ -518,13 +518,14 @@ def test_matrix_to_axis_angles_trace_without_a_gradient_passes_shepperds_raw_row
         assert name not in targets["no grad"] and name in targets["grad"], (name, targets)
 
 
-VALUE_FORM_KERNELS = ["matrix_to_euler[xzy]", "rot6d_to_matrix", "quat_geodesic_distance", "matrix_geodesic_distance"]
+VALUE_FORM_KERNELS = ["matrix_to_euler[xzy]", "quat_to_euler[zxz]", "quat_to_euler[YXZ]", "rot6d_to_matrix",
+                      "quat_geodesic_distance", "matrix_geodesic_distance"]
 
 
 @pytest.mark.parametrize("name", VALUE_FORM_KERNELS + ["axis_angle_to_quat"])
 def test_traces_without_a_gradient_take_the_rules_value_forms_with_the_same_numbers(name, compiled, monkeypatch):
-    # Where nothing records a gradient a traced rule runs its value form: no safe_sqrt blend, no
-    # (n - n) / n, no substitutes at gimbal lock. Axis-angle -> quat keeps its plain form there (the
+    # Where nothing records a gradient a traced rule (and quat -> Euler's columns) runs its value
+    # form: no safe_sqrt blend, no (n - n) / n, no substitutes at gimbal lock. Axis-angle -> quat keeps its plain form there (the
     # value form's cos and sin are torch's, not the compiled polynomials). Graphs run eagerly here,
     # so the same numbers are the same bits, NaN rows included.
     import torchquat._closed_form as closed_form
@@ -541,7 +542,7 @@ def test_traces_without_a_gradient_take_the_rules_value_forms_with_the_same_numb
 
     monkeypatch.setattr(dispatch, "_backend", backend)
     for current in (True, False):
-        monkeypatch.setattr(closed_form, "TRACED_VALUES", current)
+        monkeypatch.setattr(closed_form, "VALUE_FORMS", current)
         monkeypatch.setattr(dispatch, "_compiled", {})
         monkeypatch.setattr(dispatch, "_sincos_guesses", {})  # (each variant traces the same graphs)
         torch._dynamo.reset()

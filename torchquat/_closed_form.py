@@ -80,6 +80,14 @@ def _transformed() -> bool:
     return _functorch_active() or getattr(_forward_ad, "_current_level", -1) >= 0
 
 
+def differentiated(inputs) -> bool:
+    """Whether anything may differentiate a call on ``inputs``: autograd records (grad mode on and an
+    input requiring grad) or a ``torch.func`` transform or forward-mode AD is active. Where not, a
+    rule's value form may run (``Rule.values``: the same numbers, without the blends that keep
+    gradients finite). (In a trace of ``torch.func.grad`` the inputs need not require a gradient.)"""
+    return (torch.is_grad_enabled() and any(x.requires_grad for x in inputs)) or _transformed()
+
+
 def records_graph(inputs) -> bool:
     """Whether a call on ``inputs`` records a graph that :func:`apply` gives its closed-form
     backward (grad mode on, an input requiring grad, and no ``torch.func`` transform)."""
@@ -131,7 +139,7 @@ class _ClosedForm(torch.autograd.Function):
 
 
 TRACED = True
-TRACED_VALUES = True
+VALUE_FORMS = True  # (where nothing differentiates: the rules' value forms in traces, and quat -> Euler's columns)
 
 
 def traced_rule(rule: Rule) -> Callable:
@@ -141,7 +149,7 @@ def traced_rule(rule: Rule) -> Callable:
     ``rule.forward``'s output that saves only the inputs, whose backward runs ``rule.forward`` again
     for what the closed form needs, then ``rule.backward``. (The value forms drop the blends that keep
     autograd finite: 0.86-0.94x the time of four kernels at 1e6 rows on a Zen 4, switch
-    ``TRACED_VALUES``. A rule whose value form is slower compiled passes ``values=None``.)"""
+    ``VALUE_FORMS``. A rule whose value form is slower compiled passes ``values=None``.)"""
 
     class TracedRule(torch.autograd.Function):
         @staticmethod
@@ -164,9 +172,7 @@ def traced_rule(rule: Rule) -> Callable:
                 and any(x.requires_grad for x in inputs)
                 and not (len(inputs) == 2 and inputs[0] is inputs[1])):  # (dynamo refuses a tensor twice)
             return TracedRule.apply(tuple(options.items()), *inputs)
-        if TRACED_VALUES and rule.values is not None and torch.compiler.is_dynamo_compiling() and not (
-                torch.is_grad_enabled() and any(x.requires_grad for x in inputs)) and not _transformed():
-            # (_transformed last: in a trace of torch.func.grad the inputs need not require a gradient)
+        if VALUE_FORMS and rule.values is not None and torch.compiler.is_dynamo_compiling() and not differentiated(inputs):
             return rule.values(*inputs, **options)
         return rule.plain(*inputs, **options)
 

@@ -261,9 +261,10 @@ def lock_columnwise(forms, eps: float, abcd2) -> Tensor:
     return _lock_test(forms, eps, abcd2)[-1]
 
 
-def angles_columnwise(forms, conv: EulerConvention, eps: float, abcd2, share: float = 1.0) -> Tensor:
-    """The angles of :func:`angles_parts` side by side; ``share``: as for ``torchquat._planes.rows``."""
-    return rows(angles_parts(forms, conv, eps, abcd2)[0], share=share)
+def angles_columnwise(forms, conv: EulerConvention, eps: float, abcd2, share: float = 1.0, values: bool = False) -> Tensor:
+    """The angles of :func:`angles_parts` side by side; ``share``: as for ``torchquat._planes.rows``;
+    ``values``: as for :func:`angles_parts` (where nothing will differentiate them)."""
+    return rows(angles_parts(forms, conv, eps, abcd2, values=values)[0], share=share)
 
 
 def forms_gradient(grad, saved, conv: EulerConvention, out: Optional[Tensor] = None):
