@@ -386,7 +386,9 @@ def matrix_to_axis_angle_unchecked(R: Tensor) -> Tensor:
         # Shepperd's row 4 q_k q passed on as columns: one loop. The rotation vector depends on
         # neither q's scale nor its sign (-q negates u and copysign(., w) together, signed zeros
         # included), so the row goes unnormalised and unstandardised: 0.81-0.90x the time at 1e6 rows.
-        return _quat_to_axis_angle_columnwise_parts(_shepperd_columnwise(R, raw_columns=True), for_autograd=True)[0]
+        # (the value form, without the series branch's substitutes, where nothing differentiates)
+        for_autograd = not closed_form.VALUE_FORMS or closed_form.differentiated((R,))
+        return _quat_to_axis_angle_columnwise_parts(_shepperd_columnwise(R, raw_columns=True), for_autograd=for_autograd)[0]
     return quat_to_axis_angle_unchecked(matrix_to_quat_unchecked(R))
 
 
