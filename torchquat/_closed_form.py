@@ -148,8 +148,8 @@ def traced_rule(rule: Rule) -> Callable:
     where nothing records a graph, and where autograd records, an ``autograd.Function`` of
     ``rule.forward``'s output that saves only the inputs, whose backward runs ``rule.forward`` again
     for what the closed form needs, then ``rule.backward``. (The value forms drop the blends that keep
-    autograd finite: 0.86-0.94x the time of four kernels at 1e6 rows on a Zen 4, switch
-    ``VALUE_FORMS``. A rule whose value form is slower compiled passes ``values=None``.)"""
+    autograd finite: 0.83-0.94x the time of six kernels at 1e6 rows on a Zen 4; switch
+    ``VALUE_FORMS``. A rule whose value form is slower compiled is given here with ``values=None``.)"""
 
     class TracedRule(torch.autograd.Function):
         @staticmethod
@@ -191,6 +191,6 @@ def apply_without_closed_form(rule: Rule, *inputs: Tensor, **options):
     """``rule.values`` when nothing records a graph and it has one, else ``rule.plain`` (for batches
     where autograd's backward beats the closed form's)."""
     if rule.values is not None and not _transformed() and not (
-            torch.is_grad_enabled() and any(x.requires_grad for x in inputs)) and not _transformed():
+            torch.is_grad_enabled() and any(x.requires_grad for x in inputs)):
         return rule.values(*inputs, **options)
     return rule.plain(*inputs, **options)

@@ -141,7 +141,7 @@ def quat_to_euler_unchecked(q: Tensor, convention: EulerConvention, eps: float) 
         return closed_form.apply(QUAT_TO_EULER_PLANAR, q, convention=convention, eps=eps)
     if path == "columnwise":
         forms, abcd2 = _quat_columnwise_forms(q, convention)
-        # (the value forms where nothing differentiates: compiled, 0.9x the time at 1e6 rows)
+        # (the value forms where nothing differentiates: compiled, 0.92x the time of ZXZ at 1e6 rows, 0.99x ZYX)
         return angles_columnwise(forms, convention, eps, abcd2, values=closed_form.VALUE_FORMS and not closed_form.differentiated((q,)))
     return euler_angles(q, convention, eps, is_matrix=False)
 
