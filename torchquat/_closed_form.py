@@ -190,7 +190,6 @@ def apply(rule: Rule, *inputs: Tensor, **options):
 def apply_without_closed_form(rule: Rule, *inputs: Tensor, **options):
     """``rule.values`` when nothing records a graph and it has one, else ``rule.plain`` (for batches
     where autograd's backward beats the closed form's)."""
-    if rule.values is not None and not _transformed() and not (
-            torch.is_grad_enabled() and any(x.requires_grad for x in inputs)):
+    if rule.values is not None and not differentiated(inputs):
         return rule.values(*inputs, **options)
     return rule.plain(*inputs, **options)
