@@ -56,9 +56,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
                         help="blocked_autorange min_run_time per cell (default: 0.2); at least 3 "
                         "measurements are taken whatever it is")
     parser.add_argument("--rounds", type=int, default=3, metavar="R",
-                        help="at N <= 10,000 time every implementation R times, round-robin, and keep "
-                        "each one's fastest median (default: 3): a shared machine's speed drifts "
-                        "over minutes, and a drift during one cell would skew its ratio")
+                        help="time every implementation R times, round-robin, and keep each one's "
+                        "fastest median (default: 3): a shared machine's speed drifts over minutes "
+                        "and stalls for seconds, and a stall during one cell would skew its ratio")
     parser.add_argument("--json", metavar="FILE", default=None, help="also write every number to FILE")
     parser.add_argument("--allocator", choices=["auto", "reexec", "mallopt", "none"], default="auto",
                         help="how to keep glibc from page-faulting fresh outputs at large N: re-exec "
@@ -251,7 +251,7 @@ def run(args: argparse.Namespace) -> int:
                                 rec["error"], fn = f"{type(exc).__name__}: {exc}"[:300], None
                             cells.append((rec, fn))
                             results.append(rec)
-                        for _ in range(rounds if n <= 10_000 else 1):
+                        for _ in range(rounds):
                             for rec, fn in cells:
                                 if fn is None:
                                     continue
@@ -294,7 +294,7 @@ def run(args: argparse.Namespace) -> int:
         f"torchquat {torchquat.__version__}, torch {torch.__version__}, {str(dtype).replace('torch.', '')}, {where}, "
         f"Python {platform.python_version()}",
         f"Medians of torch.utils.benchmark blocked_autorange(min_run_time={min_run_time}) (at least 3 "
-        f"measurements); at N <= 10,000 the fastest such median of {rounds} round-robin round(s) over the "
+        f"measurements); the fastest such median of {rounds} round-robin round(s) over the "
         "implementations; fwd+bwd = the call plus torch.autograd.grad with a preallocated output gradient.",
         allocator,
         _transposes(),
