@@ -133,24 +133,36 @@ def test_no_reexec_inside_a_test_runner():
     assert timing.relaunch_argv() is None
 
 
-def test_rounds_keep_each_cells_fastest_median_at_every_batch_size(monkeypatch, tmp_path):
-    # a stall on the machine: every cell's second round is the fast one, large batches too (a
-    # stall of a few seconds had taken one N = 1e6 cell to half its speed)
-    calls = []
+def test_rounds_go_over_every_op_and_keep_each_cells_fastest_median_at_every_batch_size(monkeypatch, tmp_path):
+    # a slow spell on the machine: every cell is fast in its second round only, large batches too
+    # (in one go, a slow minute had taken a whole N = 1e6 cell to 0.6x its speed)
+    real_callable, timed = bench._callable, []
+
+    def tagged(impl, inputs, backward, seed):
+        fn = real_callable(impl, inputs, backward, seed)
+
+        def call():
+            return fn()
+        call.timed_as = impl.call
+        return call
 
     def fake_measure(fn, min_run_time, threads, min_runs=3):
-        calls.append(fn)
-        median = 1.0 if sum(c is fn for c in calls) == 2 else 3.0
+        name = getattr(fn, "timed_as", "floor")
+        timed.append(name)
+        median = 2.0 if name == "floor" else 1.0 if timed.count(name) % 3 == 2 else 3.0
         return timing.Timing(median=median, iqr=0.0, runs=3, calls=3)
 
+    monkeypatch.setattr(bench, "_callable", tagged)
     monkeypatch.setattr(timing, "measure", fake_measure)
     path = tmp_path / "bench.json"
-    args = ["--n", "1", "20000", "--ops", "quat_multiply", "--peers", "none", "--no-backward",
+    args = ["--n", "1", "20000", "--ops", "quat_multiply", "quat_to_matrix", "--peers", "none", "--no-backward",
             "--allocator", "none", "--rounds", "3", "--json", str(path)]
     assert bench.main(args) == 0
-    mine = {r["n"]: r["median_s"] for r in json.loads(path.read_text())["results"] if r["impl"] == "torchquat"}
-    assert mine == {1: 1.0, 20000: 1.0}  # the best of 3 rounds at both sizes
-    assert len(calls) == 2 * (3 + 3)  # at each N: 3 rounds of its one cell, and 3 fresh floors
+    mine = {(r["n"], r["op"]): r["median_s"] for r in json.loads(path.read_text())["results"] if r["impl"] == "torchquat"}
+    assert mine == {(n, op): 1.0 for n in (1, 20000) for op in ("quat_multiply", "quat_to_matrix")}
+    product, matrix = "torchquat.quat_multiply(p, q)", "torchquat.quat_to_matrix(q)"
+    one_n = [product] + ["floor"] * 3 + [matrix] + ["floor"] * 3 + [product, matrix] * 2
+    assert timed == one_n * 2  # each round over both ops in turn (the floors once, in the first)
 
 
 @pytest.mark.parametrize("how, status", [("SIGINT", 130), ("SIGTERM", 143)])
@@ -185,6 +197,29 @@ def test_a_stopped_run_reports_the_finished_measurements(how, status, monkeypatc
     assert data["meta"]["stopped_by"] == how and (data["meta"]["finished"], data["meta"]["planned"]) == (2, 4)
     assert {r["op"] for r in data["results"]} == {"quat_to_matrix", "quat_multiply"}
     assert signal.getsignal(signal.SIGTERM) is handler and len(calls) == 11  # the handler is put back
+
+
+def test_a_run_stopped_in_a_later_round_keeps_every_op_with_the_rounds_it_finished(monkeypatch, tmp_path, capsys):
+    # Ctrl-C in the second round, at the second op: both ops keep their first round's medians, and
+    # the first op its second round's faster one
+    times, calls = iter([3.0, 2.0, 2.0, 2.0, 3.0, 2.0, 2.0, 2.0, 1.0]), []
+
+    def measure(fn, min_run_time, threads, min_runs=3):
+        calls.append(fn)
+        if len(calls) == 10:  # round 1: 2 ops x (1 pass + 3 floor probes); round 2: the first op
+            raise KeyboardInterrupt
+        return timing.Timing(median=next(times), iqr=0.0, runs=3, calls=3)
+
+    monkeypatch.setattr(timing, "measure", measure)
+    path = tmp_path / "bench.json"
+    args = ["--n", "1", "--ops", "quat_to_matrix", "quat_multiply", "--peers", "none", "--no-backward",
+            "--rounds", "3", "--allocator", "none", "--json", str(path)]
+    assert bench.main(args) == 130
+    assert "Stopped by SIGINT after 2 of 2 (N, op) measurements" in capsys.readouterr().out
+    data = json.loads(path.read_text())
+    mine = {r["op"]: r["median_s"] for r in data["results"] if r["impl"] == "torchquat"}
+    assert mine == {"quat_to_matrix": 1.0, "quat_multiply": 3.0}
+    assert (data["meta"]["finished"], data["meta"]["planned"]) == (2, 2)
 
 
 def test_bad_threads_and_seed_exit_2_without_a_traceback(capsys):

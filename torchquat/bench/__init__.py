@@ -56,9 +56,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
                         help="blocked_autorange min_run_time per cell (default: 0.2); at least 3 "
                         "measurements are taken whatever it is")
     parser.add_argument("--rounds", type=int, default=3, metavar="R",
-                        help="time every implementation R times, round-robin, and keep each one's "
-                        "fastest median (default: 3): a shared machine's speed drifts over minutes "
-                        "and stalls for seconds, and a stall during one cell would skew its ratio")
+                        help="time every op and implementation in R rounds (each round goes over all "
+                        "the ops at one N) and keep each one's fastest median (default: 3): a shared "
+                        "machine's speed drifts over minutes and has slow spells of a minute or two, "
+                        "which would skew a cell timed in one go")
     parser.add_argument("--json", metavar="FILE", default=None, help="also write every number to FILE")
     parser.add_argument("--allocator", choices=["auto", "reexec", "mallopt", "none"], default="auto",
                         help="how to keep glibc from page-faulting fresh outputs at large N: re-exec "
@@ -92,6 +93,52 @@ def _callable(impl: _ops.Impl, inputs, backward: bool, seed: int):
         return torch.autograd.grad(outs, diff, grads, allow_unused=True)
 
     return step
+
+
+def _time_op(op, n, inputs, passes, compiled, active, agrees, agreement, records, results, first, seed,
+             min_run_time, threads) -> None:
+    """One round of ``op`` at ``n``: every implementation's every pass timed once; a record's median
+    is the fastest of its rounds. The first round creates the records (in ``records`` and ``results``)."""
+    tq_impl = _ops.torchquat_impl(op)
+    impls = [(_report.TORCHQUAT, tq_impl, None)]
+    if compiled:
+        impls.append((_report.COMPILED, _ops.torchquat_impl(op, compiled=True), None))
+    impls += [(p.name, p.impls[op.name], agrees.get((op.name, p.name))) for p in active if op.name in p.impls]
+    check_errors = {a["impl"]: a["error"] for a in agreement if a["op"] == op.name and a["error"]}
+    for pss in passes:
+        cells = []  # (record, callable)
+        for name, impl, ok in impls:
+            if pss == "fwd+bwd" and not impl.backward:
+                continue
+            if first:
+                rec = records[(op.name, pss, name)] = {
+                    "op": op.name, "n": n, "pass": pss, "impl": name, "call": impl.call, "agrees": ok,
+                    "median_s": None, "iqr_s": None, "runs": 0, "error": None}
+                if name in check_errors:  # (its output could not be compared: shown as err)
+                    rec["check_error"] = check_errors[name]
+                results.append(rec)
+            else:
+                rec = records[(op.name, pss, name)]
+                if rec["error"]:  # (it raised in an earlier round: not again)
+                    continue
+            try:
+                fn = _callable(impl, inputs, pss == "fwd+bwd", seed)
+                if name == _report.COMPILED:
+                    fn(), fn()  # compile in the first round, warm up in later ones (excluded from the timing)
+            except Exception as exc:
+                rec["error"], fn = f"{type(exc).__name__}: {exc}"[:300], None
+            cells.append((rec, fn))
+        for rec, fn in cells:
+            if fn is None:
+                continue
+            try:
+                t = _timing.measure(fn, min_run_time, threads)
+            except Exception as exc:
+                rec["error"] = f"{type(exc).__name__}: {exc}"[:300]
+                continue
+            if rec["median_s"] is None or t.median < rec["median_s"]:
+                rec.update(median_s=t.median, iqr_s=t.iqr, runs=t.runs, calls=t.calls)
+        del cells
 
 
 def _cpu_model() -> str:
@@ -217,72 +264,47 @@ def run(args: argparse.Namespace) -> int:
 
     results = []
     total = len(ns) * len(selected)
-    n, done, current, stopped = None, 0, None, None  # stopped: the signal, or the error, that ended the run early
+    n, done, step, current, stopped = None, 0, 0, None, None  # stopped: the signal, or the error, that ended the run early
     started = time.perf_counter()
     with sigterm_as_interrupt():
         try:
             for n in ns:
                 inputs = _ops.make_inputs(n, dtype, seed, device)
-                for op in selected:
-                    done += 1
-                    current = (n, op.name)
-                    _progress(f"[{done}/{total}] N={n} {op.name}", verbose)
-                    tq_impl = _ops.torchquat_impl(op)
-                    impls = [(_report.TORCHQUAT, tq_impl, None)]
-                    if compiled:
-                        impls.append((_report.COMPILED, _ops.torchquat_impl(op, compiled=True), None))
-                    impls += [(p.name, p.impls[op.name], agrees.get((op.name, p.name))) for p in active
-                              if op.name in p.impls]
-                    check_errors = {a["impl"]: a["error"] for a in agreement if a["op"] == op.name and a["error"]}
-                    for pss in passes:
-                        cells = []  # (record, callable)
-                        for name, impl, ok in impls:
-                            if pss == "fwd+bwd" and not impl.backward:
-                                continue
-                            rec = {"op": op.name, "n": n, "pass": pss, "impl": name, "call": impl.call,
-                                   "agrees": ok, "median_s": None, "iqr_s": None, "runs": 0, "error": None}
-                            if name in check_errors:  # (its output could not be compared: shown as err)
-                                rec["check_error"] = check_errors[name]
-                            try:
-                                fn = _callable(impl, inputs, pss == "fwd+bwd", seed)
-                                if name == _report.COMPILED:
-                                    fn(), fn()  # compile (excluded from the timing)
-                            except Exception as exc:
-                                rec["error"], fn = f"{type(exc).__name__}: {exc}"[:300], None
-                            cells.append((rec, fn))
-                            results.append(rec)
-                        for _ in range(rounds):
-                            for rec, fn in cells:
-                                if fn is None:
-                                    continue
-                                try:
-                                    t = _timing.measure(fn, min_run_time, threads)
-                                except Exception as exc:
-                                    rec["error"] = f"{type(exc).__name__}: {exc}"[:300]
-                                    continue
-                                if rec["median_s"] is None or t.median < rec["median_s"]:
-                                    rec.update(median_s=t.median, iqr_s=t.iqr, runs=t.runs, calls=t.calls)
-                        del cells
-                    out = op.tq_fn(*(inputs[k] for k in op.args))
-                    in_width = sum(inputs[k][0].numel() for k in op.args)
-                    # the cheapest of three fresh preallocations: a large copy's time varies run to run
-                    # (where its pages land), and the floor is the cheapest pass
-                    t = min((_timing.measure(_timing.floor_fn(n, in_width, tuple(out.shape[1:]), dtype, device), min_run_time, threads)
-                             for _ in range(3)), key=lambda timing: timing.median)
-                    results.append({"op": op.name, "n": n, "pass": "fwd", "impl": _report.FLOOR, "agrees": None,
-                                    "call": "floor", "median_s": t.median, "iqr_s": t.iqr, "runs": t.runs, "error": None})
-                    del out
-                    current = None  # (finished)
-                del inputs
+                records = {}  # (op, pass, impl) -> its record, from the first round on
+                # Each round times every op once: a cell's rounds are a third of the run apart, so a
+                # slow spell of a minute or two on a shared machine costs a cell one round, not all.
+                for round_index in range(rounds):
+                    for op in selected:
+                        first = round_index == 0
+                        if first:
+                            done += 1
+                        current = (n, op.name, first)
+                        step += 1
+                        _progress(f"[{step}/{total * rounds}] N={n} {op.name}"
+                                  + (f" (round {round_index + 1} of {rounds})" if rounds > 1 else ""), verbose)
+                        _time_op(op, n, inputs, passes, compiled, active, agrees, agreement, records, results,
+                                 first, seed, min_run_time, threads)
+                        if first:
+                            out = op.tq_fn(*(inputs[k] for k in op.args))
+                            in_width = sum(inputs[k][0].numel() for k in op.args)
+                            # the cheapest of three fresh preallocations: a large copy's time varies run to run
+                            # (where its pages land), and the floor is the cheapest pass
+                            t = min((_timing.measure(_timing.floor_fn(n, in_width, tuple(out.shape[1:]), dtype, device), min_run_time, threads)
+                                     for _ in range(3)), key=lambda timing: timing.median)
+                            results.append({"op": op.name, "n": n, "pass": "fwd", "impl": _report.FLOOR, "agrees": None,
+                                            "call": "floor", "median_s": t.median, "iqr_s": t.iqr, "runs": t.runs, "error": None})
+                            del out
+                        current = None  # (finished)
+                del inputs, records
         except (KeyboardInterrupt, Exception) as exc:  # (an error, e.g. out of memory at a larger N, keeps the rest too)
             if isinstance(exc, KeyboardInterrupt):
-                stopped = "SIGTERM" if str(exc) == "SIGTERM" else "SIGINT"
+                stopped = "SIGINT" if str(exc) != "SIGTERM" else "SIGTERM"
             else:
                 where = f"N={n}" + (f" {current[1]}" if current is not None else "")
                 stopped = f"error at {where}: {type(exc).__name__}: {exc}".splitlines()[0][:300]
-            if current is not None:  # the table keeps every finished (N, op); the one in progress is dropped
-                done -= 1
-                results[:] = [r for r in results if (r["n"], r["op"]) != current]
+            if current is not None and current[2]:  # the table keeps every (N, op) timed once; one in its
+                done -= 1                             # first round is dropped (a later round keeps the earlier)
+                results[:] = [r for r in results if (r["n"], r["op"]) != current[:2]]
     elapsed = time.perf_counter() - started
 
     import torchquat
@@ -294,15 +316,15 @@ def run(args: argparse.Namespace) -> int:
         f"torchquat {torchquat.__version__}, torch {torch.__version__}, {str(dtype).replace('torch.', '')}, {where}, "
         f"Python {platform.python_version()}",
         f"Medians of torch.utils.benchmark blocked_autorange(min_run_time={min_run_time}) (at least 3 "
-        f"measurements); the fastest such median of {rounds} round-robin round(s) over the "
-        "implementations; fwd+bwd = the call plus torch.autograd.grad with a preallocated output gradient.",
+        f"measurements); the fastest such median of {rounds} round(s), each of which times every op and "
+        "implementation at one N in turn; fwd+bwd = the call plus torch.autograd.grad with a preallocated output gradient.",
         allocator,
         _transposes(),
         "Peers: " + (", ".join(f"{p.name} {p.version} (import {p.import_s:.2f} s)" for p in active) or "none"),
     ]
     if stopped:
         header.append(f"Stopped by {stopped} after {done} of {total} (N, op) measurements: the table holds "
-                      "the finished ones.")
+                      "the finished ones (with the rounds that finished).")
     for p in peers:
         if p.error is not None:
             header.append(f"Skipped {p.name}: {p.error.splitlines()[0]} -- install the peers with: {INSTALL_HINT}")
