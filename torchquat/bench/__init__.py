@@ -271,8 +271,9 @@ def run(args: argparse.Namespace) -> int:
             for n in ns:
                 inputs = _ops.make_inputs(n, dtype, seed, device)
                 records = {}  # (op, pass, impl) -> its record, from the first round on
-                # Each round times every op once: a cell's rounds are a third of the run apart, so a
-                # slow spell of a minute or two on a shared machine costs a cell one round, not all.
+                # Each round times every op once: a cell's rounds are a third of this N's part of the
+                # run apart (minutes at 1e6), so a slow spell of a minute or two on a shared machine
+                # costs a cell one round, not all of them.
                 for round_index in range(rounds):
                     for op in selected:
                         first = round_index == 0
