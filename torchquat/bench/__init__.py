@@ -275,8 +275,8 @@ def run(args: argparse.Namespace) -> int:
                 # run apart (minutes at 1e6), so a slow spell of a minute or two on a shared machine
                 # costs a cell one round, not all of them.
                 for round_index in range(rounds):
+                    first = round_index == 0
                     for op in selected:
-                        first = round_index == 0
                         if first:
                             done += 1
                         current = (n, op.name, first)
@@ -299,7 +299,7 @@ def run(args: argparse.Namespace) -> int:
                 del inputs, records
         except (KeyboardInterrupt, Exception) as exc:  # (an error, e.g. out of memory at a larger N, keeps the rest too)
             if isinstance(exc, KeyboardInterrupt):
-                stopped = "SIGINT" if str(exc) != "SIGTERM" else "SIGTERM"
+                stopped = "SIGTERM" if str(exc) == "SIGTERM" else "SIGINT"
             else:
                 where = f"N={n}" + (f" {current[1]}" if current is not None else "")
                 stopped = f"error at {where}: {type(exc).__name__}: {exc}".splitlines()[0][:300]
