@@ -260,7 +260,7 @@ def test_a_second_derivative_through_a_compiled_kernel_raises_and_the_first_stay
     # (inductor, as shipped: dynamo's "eager" backend has no aot_autograd backward to guard, and
     # graphs cached by earlier tests would make the backend depend on the order tests run in)
     if guard == "node":  # (the fallback, where the compiled node's edges are not the inputs' own)
-        monkeypatch.setattr(tq._dispatch, "_first_order_only", lambda out, tensors: tq._dispatch._FirstOrder.apply(out, *tensors))
+        monkeypatch.setattr(tq._first_order, "first_order_only", lambda out, tensors: tq._first_order.FirstOrder.apply(out, *tensors))
     fn, generic, _ = ALL[name]
     if name == "quat_multiply":  # (the same tensor twice: one edge per argument)
         fn, x = (lambda q: ALL[name][0](q, q)), generic()[0]
@@ -296,7 +296,7 @@ def test_a_batch_of_output_gradients_through_a_compiled_kernel_raises_a_clear_er
     # inductor's backward reads its inputs' storage, which autograd's vmap (is_grads_batched,
     # jacobian(vectorize=True)) tensors lack: it failed with "Cannot access data pointer"
     if guard == "node":
-        monkeypatch.setattr(tq._dispatch, "_first_order_only", lambda out, tensors: tq._dispatch._FirstOrder.apply(out, *tensors))
+        monkeypatch.setattr(tq._first_order, "first_order_only", lambda out, tensors: tq._first_order.FirstOrder.apply(out, *tensors))
     fn, generic, _ = ALL["quat_to_matrix"]
     (x,) = generic()
     with pytest.raises(RuntimeError, match="one output gradient at a time"):

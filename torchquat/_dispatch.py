@@ -10,7 +10,8 @@ own ``torch.compile`` region, under ``torch.func`` transforms, or when switched 
 kernel runs and is traced as usual.
 
 Eager, the same dispatcher runs large CPU batches with nothing to differentiate block by block,
-so that each pass over a block's columns stays in cache (``_math.BLOCK_ROWS``).
+so that each pass over a block's columns stays in cache (``_blocked``). A compiled backward is
+first-order: a second derivative through it raises (``_first_order``).
 """
 
 import functools
@@ -21,7 +22,7 @@ from typing import Callable, Dict, Optional, Tuple
 import torch
 from torch import Tensor
 
-from . import _closed_form, _math, _one_row, _planes, _polynomials
+from . import _blocked, _closed_form, _first_order, _math, _one_row, _polynomials
 
 __all__ = ["use_compiled_kernels", "compiled_kernels_enabled", "kernel"]
 
@@ -169,55 +170,6 @@ def compiled_without_gradient(*inputs: Tensor) -> bool:
             and not (torch.is_grad_enabled() and any(x.requires_grad for x in inputs)))
 
 
-# A first test, cheap enough for one rotation (0.1 us): no batch below one thread's default bound
-# is blocked; _run_blocked reads the live settings.
-_BLOCKED_FROM = _math.BLOCK_ROWS * _math.BLOCK_MIN_BLOCKS
-
-
-def _run_blocked(fn: Callable, tensors: Tuple[Tensor, ...], row_dims: Tuple[int, ...], static) -> Optional[Tensor]:
-    """``fn(*tensors, **static)`` computed ``_math.block_rows()`` rows at a time into one output, or
-    ``None`` where blocks do not apply: off the CPU, with a gradient to record (autograd would
-    keep one graph per block), for non-contiguous inputs or batch shapes that broadcast other than
-    one row against many, or for fewer than ``_math.BLOCK_MIN_BLOCKS`` blocks. ``row_dims``: each
-    input's number of row dimensions."""
-    if not tensors[0].is_cpu or (torch.is_grad_enabled() and any(t.requires_grad for t in tensors)):
-        return None
-    batches = [t.shape[:t.dim() - r] for t, r in zip(tensors, row_dims)]
-    batch = batches[0] if all(b == batches[0] for b in batches) else torch.broadcast_shapes(*batches)
-    n_rows = batch.numel()
-    if any(not t.is_contiguous() or b.numel() not in (n_rows, 1) for t, b in zip(tensors, batches)):
-        return None
-    n_blocks = n_rows // _math.block_rows()
-    if n_blocks < _math.BLOCK_MIN_BLOCKS:
-        return None
-    # Equal blocks (1 to 2 block_rows()) of a multiple of 64 rows: vectorised loops
-    # leave a ragged end to scalar code (atan2 can differ there by an ulp), so only the last
-    # block has one, on the whole batch's rows. (The results agree with the whole batch's to an
-    # ulp, as any two batch sizes' do.)
-    size = -(-n_rows // (n_blocks * 64)) * 64
-    # (a single row, e.g. one rotation applied to many vectors, goes whole to every block)
-    blocks = zip(*(t.view((n_rows,) + t.shape[t.dim() - r:]).split(size) if b.numel() == n_rows
-                   else [t.view((1,) + t.shape[t.dim() - r:])] * -(-n_rows // size) for t, b, r in zip(tensors, batches, row_dims)))
-    first = fn(*next(blocks), **static)
-    out = first.new_empty((n_rows,) + first.shape[1:])  # (a fresh output of ours: no input is written)
-    out.narrow(0, 0, first.shape[0]).copy_(first)
-    start = first.shape[0]
-    for block in blocks:
-        # The block's slice of the output is lent to the kernel's final transposing matmul
-        # (_planes.rows), which writes it in place: one pass over the output less per block.
-        target = out.narrow(0, start, min(size, n_rows - start))
-        _planes.lend(target.view(target.shape[0], -1))
-        try:
-            y = fn(*block, **static)
-        finally:
-            _planes.lend(None)
-        if not (y.data_ptr() == target.data_ptr() and y.is_contiguous() and y.numel() == target.numel()):
-            # not written in place (a lent slice holding an intermediate is read before it is overwritten)
-            target.copy_(y.clone() if y.untyped_storage().data_ptr() == out.untyped_storage().data_ptr() else y)
-        start += target.shape[0]
-    return out.view(batch + out.shape[1:])
-
-
 def _sincos_candidate(t: Tensor, context: Tuple) -> bool:
     """Whether a compiled call may take the polynomial cos and sin: float32 on the CPU, no gradient
     recorded, a non-empty first input (the polynomials are for the graphs inference takes)."""
@@ -336,99 +288,6 @@ def _small_cpu_batch(tensors: Tuple[Tensor, ...], row_dims: Tuple[int, ...], row
     return True
 
 
-_SECOND_ORDER = ("torchquat's compiled kernels are first-order: a derivative of their gradient is not available. "
-                 "Switch them off (torchquat.use_compiled_kernels(False)) for double backward and Hessians; "
-                 "torch.func transforms run the eager kernels")
-_BATCHED_GRADIENTS = ("torchquat's compiled kernels take one output gradient at a time: a batch of them "
-                      "(torch.autograd.grad(..., is_grads_batched=True), torch.autograd.functional.jacobian or "
-                      "hessian with vectorize=True) cannot run through their compiled backward. Use vectorize=False, "
-                      "torch.func.jacrev (torch.func transforms run the eager kernels), or switch the compiled "
-                      "kernels off (torchquat.use_compiled_kernels(False))")
-
-
-def _first_order_only(output: Tensor, tensors) -> Tensor:
-    """``output`` of a compiled kernel, whose gradients raise if differentiated again.
-
-    A compiled backward asked for a graph (``create_graph``) gives a gradient that cannot be
-    differentiated, and when the incoming gradient needs none (a loss linear in the kernel's
-    output) nothing even connects that gradient to the inputs: a Hessian came out as 0, or
-    ``None``, silently. So with a graph asked for, each input's gradient gets a zero term through
-    an error node on that input, and a second derivative raises instead. A hook on the compiled
-    backward node adds it (1.00-1.06x the time with the backward at 1 and 8,192 rows, where an
-    autograd Function on the output took 1.05-1.15x); where the node's edges are not the inputs'
-    own, that Function does. An output that no compiled node made (a boolean mask, or a call that ran
-    eagerly past the recompile limit) is returned as it is: eager kernels are differentiable
-    any number of times."""
-    node = _compiled_node(output)
-    if node is None:
-        return output
-    # (inductor's backward reads its inputs' storage, which autograd's legacy vmap tensors lack:
-    # without this a batch of output gradients fails with "Cannot access data pointer")
-    node.register_prehook(_batched_gradients_prehook)
-    edges = [(x, (x.grad_fn, x.output_nr) if x.grad_fn is not None else None) for x in tensors if x.requires_grad]
-    slots = {}
-    for k, (next_node, index) in enumerate(node.next_functions):
-        for x, edge in edges:
-            if (next_node, index) == edge or (edge is None and getattr(next_node, "variable", None) is x):
-                slots[k] = x
-    if len(set(map(id, slots.values()))) != len({id(x) for x, _ in edges}):  # (aot gives a repeated input one edge)
-        return _FirstOrder.apply(output, *tensors)
-    node.register_hook(functools.partial(_second_order_hook, slots))
-    return output
-
-
-def _compiled_node(output: Tensor):
-    """The compiled function's backward node behind ``output`` (through views that
-    aot_autograd regenerates outside the graph), or None."""
-    node = output.grad_fn
-    for _ in range(4):
-        if node is None or type(node).__name__ == "CompiledFunctionBackward":
-            return node
-        if len(node.next_functions) != 1 or "View" not in type(node).__name__ and "Strided" not in type(node).__name__:
-            return None
-        node = node.next_functions[0][0]
-    return None
-
-
-def _batched_gradients_prehook(grad_outputs):
-    if any(_closed_form._legacy_batched(g) for g in grad_outputs if g is not None):
-        raise RuntimeError(_BATCHED_GRADIENTS)
-    return None
-
-
-def _second_order_hook(slots, grad_inputs, grad_outputs):
-    if not torch.is_grad_enabled():  # (first order; batched gradients never get here: the prehook raises)
-        return None
-    grads = list(grad_inputs)
-    for k, x in slots.items():
-        term = _error_term(x)
-        grads[k] = term if grads[k] is None else grads[k] + term
-    return tuple(grads)
-
-
-def _error_term(x: Tensor) -> Tensor:
-    """Zeros shaped as ``x``, connected to it through a node that raises when differentiated."""
-    return torch._C._functions.DelayedError(_SECOND_ORDER.encode(), 2)(torch.zeros_like(x), x)[0]
-
-
-class _FirstOrder(torch.autograd.Function):
-    """Identity on a compiled kernel's output, given its inputs: the same as the hook of
-    :func:`_first_order_only`, as an autograd node of its own."""
-
-    @staticmethod
-    def forward(ctx, output, *inputs):
-        ctx.save_for_backward(*inputs)
-        return output.clone()  # (not a view: callers may write into the result in place)
-
-    @staticmethod
-    def backward(ctx, grad, *_):
-        if _closed_form._legacy_batched(grad):  # (the compiled node behind it would fail obscurely)
-            raise RuntimeError(_BATCHED_GRADIENTS)
-        if not torch.is_grad_enabled():
-            return (grad,) + (None,) * len(ctx.needs_input_grad[1:])
-        return (grad,) + tuple(_error_term(x) if wanted else None
-                               for x, wanted in zip(ctx.saved_tensors, ctx.needs_input_grad[1:]))
-
 
 def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[int, ...]] = None,
            compiled_from_rows: int = 0, polynomial_atan2: bool = False, polynomial_sincos: float = 0.0,
@@ -503,14 +362,14 @@ def kernel(fn: Optional[Callable] = None, *, blocked_row_dims: Optional[Tuple[in
                     context += (_polynomials.SINCOS_TORCH,)
                 output = _call_compiled(fn, static_items, context, tensors, polynomial_atan2)
                 if output is not None and context[0]:
-                    output = _first_order_only(output, tensors)
+                    output = _first_order.first_order_only(output, tensors)
             if output is not None:
                 return output
         if (blocked_row_dims is not None and not _is_compiling()
-                and (tensors[0].numel() >= _BLOCKED_FROM or tensors[-1].numel() >= _BLOCKED_FROM
-                     or (len(tensors) > 2 and any(t.numel() >= _BLOCKED_FROM for t in tensors[1:-1])))
+                and (tensors[0].numel() >= _blocked.BLOCKED_FROM or tensors[-1].numel() >= _blocked.BLOCKED_FROM
+                     or (len(tensors) > 2 and any(t.numel() >= _blocked.BLOCKED_FROM for t in tensors[1:-1])))
                 and not torch._C._are_functorch_transforms_active()):
-            out = _run_blocked(fn, tensors, blocked_row_dims, static)
+            out = _blocked.run_blocked(fn, tensors, blocked_row_dims, static)
             if out is not None:
                 return out
         return fn(*tensors, **static)
