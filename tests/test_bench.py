@@ -375,3 +375,27 @@ def test_the_layout_model_computes_euler_to_quat_five_ways(capsys):
     assert names[1:] == list(tool["VARIANTS"]) and names[0].startswith("floor")
     for row in rows[1:]:
         assert float(row[2]) >= 0 and float(row[4]) < 1e-6, row
+
+
+def test_the_rows_or_planes_tool_computes_euler_to_quat_in_every_layout(monkeypatch, capsys):
+    # tools/rows_or_planes.py (a developer's tool, not installed): each Euler -> quat variant, rows or
+    # planes in and out, gives torchquat's quaternions (checked before timing), and the table has one
+    # row per variant, the floor and torchquat's kernel. (The eager backend: no C++ compile here.)
+    from pathlib import Path
+    import runpy
+
+    import torchquat._dispatch as dispatch
+
+    monkeypatch.setattr(dispatch, "_backend", "eager")
+    monkeypatch.setattr(dispatch, "_compiled", {})
+    monkeypatch.setattr(dispatch, "COMPILED_FROM_SCALE", 0)
+    tool = runpy.run_path(str(Path(__file__).resolve().parents[1] / "tools" / "rows_or_planes.py"))
+    assert tool["main"](["--n", "1000", "--rounds", "1", "--min-run-time", "0.001", "--backend", "eager"]) == 0
+    assert not torch.compiler.is_compiling() and not __import__("torchquat").compiled_kernels_enabled()
+    rows = [line.split("|") for line in capsys.readouterr().out.splitlines() if line.startswith("| ")][1:]
+    names = [row[1].strip() for row in rows]
+    assert names[0].startswith("floor") and names[1:-1] == list(tool["VARIANTS"]) and names[-1].startswith("torchquat")
+    errors = {row[1].strip(): row[4].strip() for row in rows}
+    checked = [name for name in names if "E->q" in name or name.startswith("torchquat")]
+    assert len(checked) == 4 and all(float(errors[name]) < 1e-6 for name in checked), errors
+    assert all(float(row[2]) > 0 for row in rows)
