@@ -12,9 +12,11 @@ from typing import Callable, Dict, NamedTuple, Optional, Tuple
 from torch import Tensor
 
 from ._validation import prepare, restore, tensor_or_as_is
-from .axis_angle import axis_angle_to_quat_unchecked, quat_to_axis_angle_unchecked
+from .axis_angle import (axis_angle_to_matrix_unchecked, axis_angle_to_quat_unchecked, matrix_to_axis_angle_unchecked,
+                         quat_to_axis_angle_unchecked)
 from .conventions import check_degrees, gimbal_eps, gimbal_threshold, parse_convention
-from .euler import euler_to_quat_unchecked, quat_to_euler_unchecked, to_degrees, to_radians
+from .euler import (euler_to_matrix_unchecked, euler_to_quat_unchecked, matrix_to_euler_unchecked, quat_to_euler_unchecked,
+                    to_degrees, to_radians)
 from .errors import ConventionError, ShapeError
 from .matrix import matrix_to_quat_unchecked, quat_to_matrix_unchecked
 from .quaternion import standardized
@@ -45,10 +47,6 @@ class Representation(NamedTuple):
         return math.prod(self.shape)
 
 
-def _standardized(q: Tensor, _opts: Options) -> Tensor:
-    return standardized(q)
-
-
 def _euler_to_quat(x: Tensor, o: Options) -> Tensor:
     return euler_to_quat_unchecked(to_radians(x, o.degrees), convention=o.convention)
 
@@ -56,6 +54,15 @@ def _euler_to_quat(x: Tensor, o: Options) -> Tensor:
 def _quat_to_euler(q: Tensor, o: Options) -> Tensor:
     eps = gimbal_eps(q.dtype) if o.eps is None else float(o.eps)
     return to_degrees(quat_to_euler_unchecked(q, convention=o.convention, eps=eps), o.degrees)
+
+
+def _euler_to_matrix(x: Tensor, o: Options) -> Tensor:
+    return euler_to_matrix_unchecked(to_radians(x, o.degrees), convention=o.convention)
+
+
+def _matrix_to_euler(R: Tensor, o: Options) -> Tensor:
+    eps = gimbal_eps(R.dtype) if o.eps is None else float(o.eps)
+    return to_degrees(matrix_to_euler_unchecked(R, convention=o.convention, eps=eps), o.degrees)
 
 
 def _identity(x: Tensor, _opts: Options) -> Tensor:
@@ -67,10 +74,9 @@ def _flattened(R: Tensor, _opts: Options) -> Tensor:
 
 
 REPRESENTATIONS: Dict[str, Representation] = {r.name: r for r in (
-    Representation("quat", (4,), "quat", _identity, _standardized,
+    Representation("quat", (4,), "quat", _identity, _identity,
                    "quaternion (w, x, y, z), returned with w >= 0"),
-    Representation("quat_xyzw", (4,), "quat", lambda x, o: x.roll(1, dims=-1),
-                   lambda q, o: _standardized(q, o).roll(-1, dims=-1),
+    Representation("quat_xyzw", (4,), "quat", lambda x, o: x.roll(1, dims=-1), lambda q, o: q.roll(-1, dims=-1),
                    "quaternion (x, y, z, w), scalar last (SciPy, ROS), returned with w >= 0"),
     Representation("matrix", (3, 3), "matrix", _identity, _identity, "3x3 rotation matrix"),
     Representation("euler", (3,), "quat", _euler_to_quat, _quat_to_euler,
@@ -84,6 +90,13 @@ REPRESENTATIONS: Dict[str, Representation] = {r.name: r for r in (
 )}
 
 _HUB_TO_HUB = {("quat", "matrix"): quat_to_matrix_unchecked, ("matrix", "quat"): matrix_to_quat_unchecked}
+_QUATERNIONS = ("quat", "quat_xyzw")
+# Representations on the quaternion's side with a kernel of their own to and from the matrix, which
+# convert takes in place of the way through both hubs: one kernel instead of two, and the named
+# function's numbers (matrix -> Euler reads its angles off R's entries: 6.7e-7 rad off in float32,
+# against 2.2e-5 through the quaternion)
+_TO_MATRIX = {"euler": _euler_to_matrix, "axis_angle": lambda x, o: axis_angle_to_matrix_unchecked(x)}
+_FROM_MATRIX = {"euler": _matrix_to_euler, "axis_angle": lambda R, o: matrix_to_axis_angle_unchecked(R)}
 
 
 def parse_conversion(src: str, dst: str, fn: str, convention=None, degrees: bool = False):
@@ -165,10 +178,19 @@ def convert(x: Tensor, src: str, dst: str, *, convention: Optional[str] = None, 
         x, dtype = prepare(x, "convert", "x", shape)
     except ShapeError as err:
         raise ShapeError(f"{err} (for src={src!r})") from None
-    hub = src_rep.to_hub(x, Options(src_conv, degrees, eps))
+    src_options, dst_options = Options(src_conv, degrees, eps), Options(dst_conv, degrees, eps)
+    if src_rep.hub == "matrix" and dst_rep.name in _FROM_MATRIX:  # (matrix, 6D or 9D -> Euler or axis-angle)
+        return restore(_FROM_MATRIX[dst_rep.name](src_rep.to_hub(x, src_options), dst_options), dtype)
+    if dst_rep.hub == "matrix" and src_rep.name in _TO_MATRIX:
+        return restore(dst_rep.from_hub(_TO_MATRIX[src_rep.name](x, src_options), dst_options), dtype)
+    hub = src_rep.to_hub(x, src_options)
     if src_rep.hub != dst_rep.hub:
         hub = _HUB_TO_HUB[(src_rep.hub, dst_rep.hub)](hub)
-    out = dst_rep.from_hub(hub, Options(dst_conv, degrees, eps))
-    if src_rep.to_hub is _identity and dst_rep.from_hub in (_identity, _flattened):
+    elif src_rep.name in _QUATERNIONS and dst_rep.name in _QUATERNIONS:
+        # the one way to a quaternion that no conversion has made canonical: every conversion that
+        # returns one (Euler angles, axis-angle, the matrix) gives w >= 0 itself
+        hub = standardized(hub)
+    out = dst_rep.from_hub(hub, dst_options)
+    if hub is x and dst_rep.from_hub in (_identity, _flattened):
         out = out.clone()  # (matrix -> matrix or rot9d: x itself or a view of it; outputs are fresh)
     return restore(out, dtype)
