@@ -26,6 +26,9 @@ MODULES = {
                            "Convert(src='euler', dst='quat', convention='ZYX', degrees=False)"),
     "Convert-rot9d-rot6d": (lambda: Convert("rot9d", "rot6d"), (torch.randn(5, 9, generator=_G),),
                             "Convert(src='rot9d', dst='rot6d')"),
+    # (a pair convert takes straight to its own kernel, matrix_to_euler)
+    "Convert-matrix-euler": (lambda: Convert("matrix", "euler:zxz", degrees=True), (_R,),
+                             "Convert(src='matrix', dst='euler', convention='zxz', degrees=True)"),
     "RotateVectors": (RotateVectors, (_Q[:, None], torch.randn(5, 7, 3, generator=_G)), "RotateVectors()"),
     "RotationHead-rot6d": (_head("rot6d"), (_F,), "in_features=8, representation='rot6d', output='matrix'"),
     "RotationHead-rot9d": (_head("rot9d"), (_F,), "representation='rot9d'"),
