@@ -3,7 +3,9 @@
 Each representation names its trailing shape and how it reaches its *hub*: the quaternion for
 quaternion-like ones (Euler angles and axis-angle have closed forms there) and the matrix for
 matrix-like ones (6D, 9D). ``convert``, ``torchquat.nn`` and the command line all read this
-table instead of keeping if/elif chains of their own.
+table instead of keeping if/elif chains of their own. Where a pair crosses the hubs and has a
+kernel of its own (Euler angles and axis-angle to and from the matrix), ``convert`` takes that
+kernel (``_TO_MATRIX``, ``_FROM_MATRIX``).
 """
 
 import math
