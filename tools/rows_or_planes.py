@@ -111,6 +111,7 @@ def main(argv=None) -> int:
             if columns is euler_zyx_quat_columns:
                 out = fn(x)
                 errors[name] = float(((out if layout is _rows else out.t()).double() - reference).abs().max())
+        was_enabled = tq.compiled_kernels_enabled()
         tq.use_compiled_kernels(True)
         try:
             calls["torchquat euler_to_quat ZYX (compiled)"] = lambda: tq.euler_to_quat(angles, "ZYX")
@@ -124,7 +125,7 @@ def main(argv=None) -> int:
                     t = benchmark.Timer("f()", globals={"f": call}, num_threads=1).blocked_autorange(min_run_time=args.min_run_time)
                     medians[name].append(t.median * 1e3)
         finally:
-            tq.use_compiled_kernels(False)
+            tq.use_compiled_kernels(was_enabled)
     print(f"{args.n} float32 rows, one thread, {args.rounds} rounds in turns; medians of each round (ms)\n")
     print("| variant | median ms | fastest ms | max error against float64 |")
     print("|---|---:|---:|---:|")
