@@ -36,14 +36,9 @@ from torchquat.bench import timing
 
 
 def _half_cos_sin(h):
-    """``(cos h, sin h)`` for ``|h| <= pi / 2``: ``_polynomials.half_cos_sinc``'s arithmetic, with
-    its coefficients as plain numbers (that function reads them through the kernels' literals)."""
-    p, q = _polynomials._HALF_COS_POLYNOMIAL, _polynomials._HALF_SINC_POLYNOMIAL
-    w = h * h
-    w2 = w * w
-    c = (1.0 + p[0] * w) + w2 * ((p[1] + p[2] * w) + w2 * (p[3] + p[4] * w))
-    r = (1.0 + q[0] * w) + w2 * ((q[1] + q[2] * w) + w2 * q[3])
-    return c, h * r
+    """``(cos h, sin h)`` for ``|h| <= pi / 2`` by the shipped polynomials (as the kernels' direct mode)."""
+    c, sinc = _polynomials.half_cos_sinc(h * h)
+    return c, h * sinc
 
 
 def euler_zyx_quat_columns(angles) -> List:
