@@ -22,7 +22,7 @@ from typing import Callable, Dict, Optional, Tuple
 import torch
 from torch import Tensor
 
-from . import _blocked, _closed_form, _first_order, _math, _one_row, _polynomials
+from . import _blocked, _closed_form, _first_order, _math, _one_row, _polynomials, _row_stores
 
 __all__ = ["use_compiled_kernels", "compiled_kernels_enabled", "kernel"]
 
@@ -147,6 +147,7 @@ def _compiled_for(fn: Callable, static: Tuple, context: Tuple = (), polynomial: 
             bits = _VECTOR_BITS.get(fn)
             if bits is not None and _widest_cpu_vectors() > bits:  # (never narrower than the CPU's own)
                 inductor_options["cpp.simdlen"] = bits
+            inductor_options.update(_row_stores.options())
         compiled = _compiled[key] = torch.compile(_fresh_copy(bound, len(_compiled)), dynamic=True, fullgraph=True,
                                                      backend=_backend, options=inductor_options)
     return compiled
