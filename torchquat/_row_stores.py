@@ -85,7 +85,7 @@ class _Access:
         return (self.type, self.lanes, self.var, self.stride)
 
 
-def _runs(source: str) -> List[List[_Access]]:
+def _store_groups(source: str) -> List[List[_Access]]:
     """The scattered stores of ``source`` in runs of consecutive ones of one shape (only blanks
     between them), each run cut into groups of one row's ``stride`` columns."""
     runs: List[List[_Access]] = []
@@ -133,7 +133,7 @@ def _load_groups(source: str) -> List[List[_Access]]:
     return groups
 
 
-def _chain(sources: List[List[Tuple[int, int]]], names: Sequence[str], lanes: int) -> str:
+def _chain(sources: Sequence[Tuple[int, int]], names: Sequence[str], lanes: int) -> str:
     """A C++ expression for one vector whose lane ``j`` is lane ``sources[j][1]`` of vector
     ``sources[j][0]`` (``names``): two-input ``__builtin_shufflevector``s, one per vector after the
     first two (so ``k`` vectors take ``k - 1``)."""
@@ -224,6 +224,12 @@ def _columns_from_rows(width: int, lanes: int, rows: Sequence[str], columns: Seq
     return statements
 
 
+def _vector_type(kind: str, lanes: int) -> Tuple[str, str]:
+    """The name of a GCC vector type of ``lanes`` ``kind``s (float or double), and its typedef."""
+    name = f"tq_{kind}x{lanes}"
+    return name, f"typedef {kind} {name} __attribute__((vector_size({lanes * (4 if kind == 'float' else 8)})));"
+
+
 def _transposed(group: Sequence[_Access]) -> str:
     """C++ that writes the group's columns as whole rows where its pointers are one row's entries,
     and inductor's own stores elsewhere."""
@@ -235,12 +241,11 @@ def _transposed(group: Sequence[_Access]) -> str:
             return original
     first = group[0]
     width, lanes, kind, indent = first.stride, first.lanes, first.type, first.indent
-    vector = f"tq_{kind}x{lanes}"
+    vector, typedef = _vector_type(kind, lanes)
     base = f"({first.pointer} + {first.offset})" if first.offset else first.pointer
     check = "true" if same_pointer else " && ".join(f"{s.pointer} + {s.offset} == {base} + {j}"
                                                     for j, s in enumerate(group) if j)
-    lines = [_SHUFFLES_AVAILABLE, f"if ({check})", "{",
-             f"    typedef {kind} {vector} __attribute__((vector_size({lanes * (4 if kind == 'float' else 8)})));"]
+    lines = [_SHUFFLES_AVAILABLE, f"if ({check})", "{", "    " + typedef]
     for j, s in enumerate(group):
         lines.append(f"    {vector} tq_column{j}; {s.value}.store(&tq_column{j}, static_cast<int64_t>({lanes}));")
     lines.append(f"    {kind}* tq_row = {base} + {width}L*{first.var};")
@@ -256,10 +261,9 @@ def _shuffled_loads(group: Sequence[_Access], tag: int) -> str:
     """C++ that defines the group's column vectors from ``stride`` whole-vector loads of its rows."""
     first = group[0]
     width, lanes, kind, indent = first.stride, first.lanes, first.type, first.indent
-    vector, prefix = f"tq_{kind}x{lanes}", f"tq_load{tag}"
+    (vector, typedef), prefix = _vector_type(kind, lanes), f"tq_load{tag}"
     rows, columns = [f"{prefix}_row{m}" for m in range(width)], [f"{prefix}_column{k}" for k in range(width)]
-    lines = [_SHUFFLES_AVAILABLE,
-             f"typedef {kind} {vector} __attribute__((vector_size({lanes * (4 if kind == 'float' else 8)})));"]
+    lines = [_SHUFFLES_AVAILABLE, typedef]
     for m, row in enumerate(rows):
         lines.append(f"{vector} {row}; __builtin_memcpy(&{row}, {first.pointer} + {width}L*{first.var} + {m * lanes}, sizeof({row}));")
     lines += _columns_from_rows(width, lanes, rows, columns, prefix)
@@ -274,7 +278,7 @@ def rewrite(source: str) -> str:
     and scattered column stores done as whole-row vectors (see the module's docstring); unchanged
     where there is none."""
     edits = []  # (start, end, text): non-overlapping spans of source to replace
-    for group in _runs(source):
+    for group in _store_groups(source):
         edits.append((min(s.start for s in group), max(s.end for s in group), _transposed(group)))
     for tag, group in enumerate(_load_groups(source)):
         first, *others = sorted(group, key=lambda load: load.start)
