@@ -5,7 +5,6 @@ from pathlib import Path
 import pytest
 
 import torchquat
-import torchquat._dispatch
 
 
 @pytest.fixture(scope="session")
@@ -19,9 +18,7 @@ def shared_data() -> Path:
 
 @pytest.fixture
 def compiled(monkeypatch):
-    """The compiled kernels switched on for one test, for every batch size (small CPU batches
-    otherwise run eagerly: ``_dispatch.COMPILED_FROM_SCALE``)."""
-    monkeypatch.setattr(torchquat._dispatch, "COMPILED_FROM_SCALE", 0)
+    """The compiled kernels switched on for one test."""
     torchquat.use_compiled_kernels(True)
     yield
     torchquat.use_compiled_kernels(False)

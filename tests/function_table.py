@@ -164,38 +164,3 @@ class DispatchRecorder(TorchDispatchMode):
     def __torch_dispatch__(self, func, types, args=(), kwargs=None):
         self.names.append(func.overloadpacket.__name__)
         return func(*args, **(kwargs or {}))
-
-
-def fix_transposes(monkeypatch, setting: str) -> None:
-    """Fix how large batches are transposed (``TORCHQUAT_TRANSPOSES``: ``matmul`` or ``copy``) for
-    one test; the cached choices are made again (``torchquat._planes.by_matmul``)."""
-    import torchquat._planes as planes
-
-    monkeypatch.setenv(planes.TRANSPOSES_VARIABLE, setting)
-    monkeypatch.setattr(planes, "_BY_MATMUL", {})
-
-
-def traced_targets(fn, *inputs) -> list:
-    """The functions that dynamo's graph of ``fn`` on ``inputs`` calls (after a reset, so that it
-    traces afresh), in order."""
-    targets = []
-
-    def backend(gm, example_inputs):
-        targets.extend(node.target for node in gm.graph.nodes if node.op == "call_function")
-        return gm.forward
-
-    torch._dynamo.reset()
-    torch.compile(fn, backend=backend, fullgraph=True)(*inputs)
-    return targets
-
-
-def compiled_as_the_polynomial_kernels_are(fn):
-    """``fn`` compiled with the options of the kernels' polynomial graphs (multiply-adds contracted
-    into fma where torch's inductor has that option: ``_dispatch._polynomial_options``), or ``None``
-    where this torch has no such option."""
-    from torchquat import _dispatch
-
-    options = dict(_dispatch._polynomial_options(), **{"cpp.enable_tiling_heuristics": False})
-    if _dispatch._CONTRACT_OPTION[0] not in options:
-        return None
-    return torch.compile(fn, dynamic=True, fullgraph=True, options=options)

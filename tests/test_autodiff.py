@@ -148,14 +148,6 @@ def test_rot9d_second_derivatives_match_differences_of_the_gradient(at):
     torch.testing.assert_close(rows, expected, rtol=0, atol=1e-8)
 
 
-def test_rot9d_forward_mode_over_forward_mode_raises():
-    # PyTorch runs a Function's jvp without forward mode: the inner tangent's own tangent would be 0
-    M = torch.randn(3, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(9))
-    f = lambda x: tq.rot9d_to_matrix(x).sum()
-    with pytest.raises(RuntimeError, match="forward mode over forward mode"):
-        torch.func.jacfwd(torch.func.jacfwd(f))(M)
-
-
 @pytest.mark.parametrize("dtype,scale", [(torch.float32, 1e-38), (torch.float32, 1e30), (torch.float64, 1e-300)])
 def test_rot9d_gradient_with_a_graph_equals_the_closed_form_at_any_scale(dtype, scale):
     # the differentiable form's floor is relative (an absolute one lost the digits below 1e-36 in float32)

@@ -96,21 +96,17 @@ def test_per_sample_jacobians_by_vmap_of_jacrev_and_jacfwd(name):
                 torch.testing.assert_close(row_jacobians[i], J[i][(slice(None),) * out_dims + (i,)])
 
 
-def test_first_use_under_inference_mode_or_torch_func_does_not_break_later_calls(monkeypatch):
-    # Constant tables are cached on first use: one built under inference_mode must not be an
-    # inference tensor (training would fail to save it), nor one built under torch.func a
-    # wrapped tensor (later transforms would fail).
-    from torchquat import _math
+def test_first_use_under_inference_mode_or_torch_func_does_not_break_later_calls():
+    # Nothing computed under inference_mode or torch.func may leak into later calls (an inference
+    # tensor cannot be saved for training, a wrapped tensor breaks later transforms).
     q = tq.random_quat(3, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
     R = tq.quat_to_matrix(q)
-    monkeypatch.setattr(_math, "_CONSTANTS", {})
     with torch.inference_mode():
         tq.matrix_to_quat(R), tq.quat_rotate(q, R[..., 0]), tq.matrix_geodesic_distance(R, R.flip(0))
     for fn, x in ((tq.matrix_to_quat, R), (lambda v: tq.quat_rotate(q, v), R[..., 0]),
                   (lambda M: tq.matrix_geodesic_distance(M, R.flip(0)), R)):
         x = x.clone().requires_grad_()
         assert torch.isfinite(torch.autograd.grad(fn(x).sum(), x)[0]).all()
-    monkeypatch.setattr(_math, "_CONSTANTS", {})
     f = lambda x: tq.quat_to_euler(x, "ZYX")
     H = torch.func.hessian(f)(q[0])
     assert torch.isfinite(H).all()
@@ -213,24 +209,6 @@ def test_convert_within_a_representation_returns_a_fresh_tensor(src, dst):
     before = x.detach().clone()
     out.view(-1)[0] = 7.0
     assert torch.equal(x.detach(), before)
-
-
-def test_each_cached_constant_name_has_one_value():
-    # constant() caches by (name, dtype): one name written with two values would hand one of them
-    # to both call sites, whichever ran first (an axis-angle stand-in once reused "unit_x", the
-    # small Euler path's (0, 1) pair)
-    import pathlib
-    import re
-    import torchquat
-    seen = {}
-    pattern = re.compile(r'constant\(\s*"([^"]+)",\s*([^,]+(?:\([^)]*\))?[^,]*),')
-    for path in pathlib.Path(torchquat.__file__).parent.rglob("*.py"):
-        for name, value in pattern.findall(path.read_text()):
-            # (the same expression of another tensor's dtype is the same value)
-            seen.setdefault(name, set()).add(re.sub(r"finfo\(\w+\.dtype\)", "finfo(x.dtype)", value.strip()))
-    assert seen, "no constant() calls found"
-    clashes = {name: values for name, values in seen.items() if len(values) > 1}
-    assert not clashes, clashes
 
 
 _BROADCAST_CALLS = {

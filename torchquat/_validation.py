@@ -38,7 +38,10 @@ def prepare(x, fn: str, name: str, trailing: Tuple[int, ...]) -> Tuple[Tensor, t
     trailing dimensions are not ``trailing`` (a tuple). float16/bfloat16 are computed in float32.
     """
     if not isinstance(x, Tensor):
-        x = torch.as_tensor(x)
+        try:
+            x = torch.as_tensor(x)
+        except (TypeError, ValueError, RuntimeError):
+            raise TypeError(f"{fn}: expected {name} to be a tensor, got {type(x).__name__}") from None
     dtype = x.dtype
     if not dtype.is_floating_point:
         raise TypeError(f"{fn}: expected {name} to be a floating-point tensor, got dtype {dtype}")

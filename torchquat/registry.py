@@ -13,16 +13,13 @@ from typing import Callable, Dict, NamedTuple, Optional, Tuple
 
 from torch import Tensor
 
+from . import _euler_formulas as E
+from . import _formulas as F
+from ._dispatch import run
 from ._validation import prepare, restore, tensor_or_as_is
-from .axis_angle import (axis_angle_to_matrix_unchecked, axis_angle_to_quat_unchecked, matrix_to_axis_angle_unchecked,
-                         quat_to_axis_angle_unchecked)
 from .conventions import check_degrees, gimbal_eps, gimbal_threshold, parse_convention
-from .euler import (euler_to_matrix_unchecked, euler_to_quat_unchecked, matrix_to_euler_unchecked, quat_to_euler_unchecked,
-                    to_degrees, to_radians)
 from .errors import ConventionError, ShapeError
-from .matrix import matrix_to_quat_unchecked, quat_to_matrix_unchecked
-from .quaternion import standardized
-from .rot6d import matrix_to_rot6d_unchecked, rot6d_to_matrix_unchecked, rot9d_to_matrix_unchecked
+from .rot6d import project, rot6d_noise
 
 __all__ = ["Representation", "REPRESENTATIONS", "convert", "parse_representation", "parse_conversion"]
 
@@ -49,22 +46,13 @@ class Representation(NamedTuple):
         return math.prod(self.shape)
 
 
-def _euler_to_quat(x: Tensor, o: Options) -> Tensor:
-    return euler_to_quat_unchecked(to_radians(x, o.degrees), convention=o.convention)
+def _options(o: Options, x: Tensor) -> dict:
+    eps = gimbal_eps(x.dtype) if o.eps is None else float(o.eps)
+    return {"name": o.convention.name, "degrees": o.degrees, "eps": eps}
 
 
-def _quat_to_euler(q: Tensor, o: Options) -> Tensor:
-    eps = gimbal_eps(q.dtype) if o.eps is None else float(o.eps)
-    return to_degrees(quat_to_euler_unchecked(q, convention=o.convention, eps=eps), o.degrees)
-
-
-def _euler_to_matrix(x: Tensor, o: Options) -> Tensor:
-    return euler_to_matrix_unchecked(to_radians(x, o.degrees), convention=o.convention)
-
-
-def _matrix_to_euler(R: Tensor, o: Options) -> Tensor:
-    eps = gimbal_eps(R.dtype) if o.eps is None else float(o.eps)
-    return to_degrees(matrix_to_euler_unchecked(R, convention=o.convention, eps=eps), o.degrees)
+def _euler_options(o: Options) -> dict:
+    return {"name": o.convention.name, "degrees": o.degrees}
 
 
 def _identity(x: Tensor, _opts: Options) -> Tensor:
@@ -75,30 +63,36 @@ def _flattened(R: Tensor, _opts: Options) -> Tensor:
     return R.flatten(-2)
 
 
+def _matrix_to_rot6d(R: Tensor, _opts: Options) -> Tensor:
+    return R.mT.flatten(-2)[..., :6]
+
+
 REPRESENTATIONS: Dict[str, Representation] = {r.name: r for r in (
     Representation("quat", (4,), "quat", _identity, _identity,
                    "quaternion (w, x, y, z), returned with w >= 0"),
     Representation("quat_xyzw", (4,), "quat", lambda x, o: x.roll(1, dims=-1), lambda q, o: q.roll(-1, dims=-1),
                    "quaternion (x, y, z, w), scalar last (SciPy, ROS), returned with w >= 0"),
     Representation("matrix", (3, 3), "matrix", _identity, _identity, "3x3 rotation matrix"),
-    Representation("euler", (3,), "quat", _euler_to_quat, _quat_to_euler,
+    Representation("euler", (3,), "quat", lambda x, o: run(E.euler_to_quat, (x,), (4,), **_euler_options(o)),
+                   lambda q, o: run(E.quat_to_euler, (q,), (3,), **_options(o, q)),
                    "Euler angles; needs convention= (or 'euler:ZYX')"),
-    Representation("axis_angle", (3,), "quat", lambda x, o: axis_angle_to_quat_unchecked(x),
-                   lambda q, o: quat_to_axis_angle_unchecked(q), "rotation vector, angle in [0, pi]"),
-    Representation("rot6d", (6,), "matrix", lambda x, o: rot6d_to_matrix_unchecked(x),
-                   lambda R, o: matrix_to_rot6d_unchecked(R), "first two columns of R (Zhou et al. 2019)"),
-    Representation("rot9d", (9,), "matrix", lambda x, o: rot9d_to_matrix_unchecked(x.unflatten(-1, (3, 3))),
+    Representation("axis_angle", (3,), "quat", lambda x, o: run(F.axis_angle_to_quat, (x,), (4,)),
+                   lambda q, o: run(F.quat_to_axis_angle, (q,), (3,)), "rotation vector, angle in [0, pi]"),
+    Representation("rot6d", (6,), "matrix", lambda x, o: run(F.rot6d_to_matrix, (x,), (3, 3), noise=rot6d_noise(x.dtype)),
+                   _matrix_to_rot6d, "first two columns of R (Zhou et al. 2019)"),
+    Representation("rot9d", (9,), "matrix", lambda x, o: project(x.unflatten(-1, (3, 3))),
                    _flattened, "any 3x3 matrix row-major, projected by SVD (Levinson et al. 2020)"),
 )}
 
-_HUB_TO_HUB = {("quat", "matrix"): quat_to_matrix_unchecked, ("matrix", "quat"): matrix_to_quat_unchecked}
+_HUB_TO_HUB = {("quat", "matrix"): lambda q: run(F.quat_to_matrix, (q,), (3, 3)),
+               ("matrix", "quat"): lambda R: run(F.matrix_to_quat, (R.flatten(-2),), (4,))}
 _QUATERNIONS = ("quat", "quat_xyzw")
-# Representations on the quaternion's side with a kernel of their own to and from the matrix, which
-# convert takes in place of the way through both hubs: one kernel instead of two, and the named
-# function's numbers (matrix -> Euler reads its angles off R's entries: 6.7e-7 rad off in float32,
-# against 2.2e-5 through the quaternion)
-_TO_MATRIX = {"euler": _euler_to_matrix, "axis_angle": lambda x, o: axis_angle_to_matrix_unchecked(x)}
-_FROM_MATRIX = {"euler": _matrix_to_euler, "axis_angle": lambda R, o: matrix_to_axis_angle_unchecked(R)}
+# Representations on the quaternion's side with a formula of their own to and from the matrix, which
+# convert takes in place of the way through both hubs (one formula, the named function's numbers)
+_TO_MATRIX = {"euler": lambda x, o: run(E.euler_to_matrix, (x,), (3, 3), **_euler_options(o)),
+              "axis_angle": lambda x, o: run(F.axis_angle_to_matrix, (x,), (3, 3))}
+_FROM_MATRIX = {"euler": lambda R, o: run(E.matrix_to_euler, (R.flatten(-2),), (3,), **_options(o, R)),
+                "axis_angle": lambda R, o: run(F.matrix_to_axis_angle, (R.flatten(-2),), (3,))}
 
 
 def parse_conversion(src: str, dst: str, fn: str, convention=None, degrees: bool = False):
@@ -117,10 +111,12 @@ def parse_representation(token: str, fn: str, convention=None):
     """Split ``"euler:ZYX"`` into the registry entry and the convention; check both."""
     if not isinstance(token, str):
         raise ValueError(f"{fn}: expected a representation name, got {token!r}")
-    name, _, inline = token.partition(":")
+    name, colon, inline = token.partition(":")
     rep = REPRESENTATIONS.get(name)
     if rep is None:
         raise ValueError(f"{fn}: unknown representation {token!r}: use one of {', '.join(sorted(REPRESENTATIONS))}")
+    if colon and not inline:
+        raise ConventionError(f"{fn}: {token!r} names no convention after ':', e.g. 'euler:ZYX'")
     if inline and name != "euler":
         raise ValueError(f"{fn}: only 'euler' takes a convention after ':', got {token!r}")
     if inline and convention is not None and inline != convention:
@@ -191,7 +187,7 @@ def convert(x: Tensor, src: str, dst: str, *, convention: Optional[str] = None, 
     elif src_rep.name in _QUATERNIONS and dst_rep.name in _QUATERNIONS:
         # the one way to a quaternion that no conversion has made canonical: every conversion that
         # returns one (Euler angles, axis-angle, the matrix) gives w >= 0 itself
-        hub = standardized(hub)
+        hub = run(F.standardize, (hub,), (4,))
     out = dst_rep.from_hub(hub, dst_options)
     if hub is x and dst_rep.from_hub in (_identity, _flattened):
         out = out.clone()  # (matrix -> matrix or rot9d: x itself or a view of it; outputs are fresh)

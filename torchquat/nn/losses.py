@@ -9,10 +9,9 @@ loss and at rotations 180 degrees apart.
 import torch
 from torch import Tensor, nn
 
-from .._math import constant
+from .. import _formulas as F
+from .._dispatch import run
 from .._validation import prepare_pair, restore
-from ..distance import matrix_geodesic_distance_unchecked, quat_geodesic_distance_unchecked
-from ..quaternion import normalized
 from ._common import check_reduction, check_tensor, reduce
 
 __all__ = ["GeodesicLoss", "QuatDistanceLoss", "ChordalLoss"]
@@ -64,10 +63,10 @@ class GeodesicLoss(nn.Module):
     def _loss(self, input: Tensor, target: Tensor) -> Tensor:
         if self.representation == "matrix":
             a, b, dtype = _prepare_pair("GeodesicLoss", input, target, (3, 3))
-            loss = matrix_geodesic_distance_unchecked(a, b)
+            loss = run(F.matrix_distance, (a.flatten(-2), b.flatten(-2)), ())
         else:
             a, b, dtype = _prepare_pair("GeodesicLoss", input, target, (4,))
-            loss = quat_geodesic_distance_unchecked(a, b)
+            loss = run(F.quat_distance, (a, b), ())
         return restore(reduce(loss, self.reduction), dtype)
 
     def extra_repr(self) -> str:
@@ -107,12 +106,12 @@ class QuatDistanceLoss(nn.Module):
 
     def _loss(self, input: Tensor, target: Tensor) -> Tensor:
         a, b, dtype = _prepare_pair("QuatDistanceLoss", input, target, (4,))
-        p, q = normalized(a), normalized(b)
+        p, q = a * torch.rsqrt((a * a).sum(-1, keepdim=True)), b * torch.rsqrt((b * b).sum(-1, keepdim=True))
         # 1 - |<p, q>| = min(|p - q|^2, |p + q|^2) / 2 for unit p, q: never below 0 (1 - |dot| was
         # -2e-7 for equal float32 inputs), and small losses keep their digits (1 - |dot| rounds
         # them to multiples of 6e-8 in float32)
         chords = torch.stack((p - q, p + q), dim=-2)
-        loss = (chords * chords).sum(-1).amin(-1) * constant("half", 0.5, chords)
+        loss = (chords * chords).sum(-1).amin(-1) * 0.5
         return restore(reduce(loss, self.reduction), dtype)
 
     def extra_repr(self) -> str:
