@@ -11,18 +11,20 @@ import torch
 
 from torchquat import bench
 from torchquat.bench import ops as bench_ops
-from torchquat.bench import timing
+from torchquat.bench import options as bench_options
+from torchquat.bench import peers as bench_peers
+from torchquat.bench import runner, timing
 
 OPS = ["quat_to_matrix", "quat_to_euler_ZYX", "quat_multiply"]
 ARGS = ["--n", "1", "10", "--ops", *OPS, "--min-run-time", "0.001", "--allocator", "none"]
 
 
 def _installed(peer):
-    module = dict((name, module) for name, module, *_ in bench_ops.PEER_SPECS)[peer]
+    module = dict((name, module) for name, module, *_ in bench_peers.PEER_SPECS)[peer]
     return importlib.util.find_spec(module) is not None
 
 
-INSTALLED = [p for p in bench_ops.PEER_NAMES if _installed(p)]
+INSTALLED = [p for p in bench_peers.PEER_NAMES if _installed(p)]
 
 
 def test_add_arguments_defaults():
@@ -42,7 +44,6 @@ def test_bench_table_and_json(tmp_path, capsys):
     assert "### N = 1\n" in out and "### N = 10\n" in out
     assert "| op | pass | torchquat |" in out
     assert "allocator: glibc defaults" in out
-    assert "transposes of large eager batches (TORCHQUAT_TRANSPOSES=" in out  # (N = 1 and 10 make none)
     for label in ("quat -> matrix", "quat -> Euler ZYX", "quat product"):
         assert f"| {label} | fwd |" in out and f"| {label} | fwd+bwd |" in out
     for peer in INSTALLED:
@@ -51,7 +52,7 @@ def test_bench_table_and_json(tmp_path, capsys):
     data = json.loads(path.read_text())
     assert set(data) == {"meta", "results", "summary", "agreement", "legend"}
     assert data["meta"]["ns"] == [1, 10] and data["meta"]["threads"] == 1 and data["meta"]["device"] == "cpu"
-    assert isinstance(data["meta"]["cpu"], str) and data["meta"]["transposes"].startswith("transposes of large")
+    assert isinstance(data["meta"]["cpu"], str)
     results = data["results"]
     mine = [r for r in results if r["impl"] == "torchquat"]
     assert {(r["op"], r["n"], r["pass"]) for r in mine} == {
@@ -70,7 +71,7 @@ def test_bench_table_and_json(tmp_path, capsys):
 @pytest.mark.parametrize("peer", INSTALLED)
 def test_installed_peers_agree(peer):
     """Every installed peer's call computes the same rotation as torchquat (the bench's check)."""
-    [loaded] = bench_ops.load_peers([peer])
+    [loaded] = bench_peers.load_peers([peer])
     assert loaded.error is None, loaded.error
     inputs = bench_ops.make_check_inputs(torch.float32)
     assert loaded.impls
@@ -83,8 +84,8 @@ def test_disagreeing_peer_is_marked_and_not_counted(tmp_path, capsys, monkeypatc
     """A peer that computes a different rotation gets "≠" and is never the fastest peer."""
     wrong = bench_ops.Impl(lambda q: torch.zeros(q.shape[:-1] + (3, 3)), lambda d: (d["q"],), "zeros")
     spec = ("fake", "torch", lambda mod: {"quat_to_matrix": wrong}, True, None)
-    monkeypatch.setattr(bench_ops, "PEER_SPECS", [spec])
-    monkeypatch.setattr(bench_ops, "PEER_NAMES", ["fake"])
+    monkeypatch.setattr(bench_peers, "PEER_SPECS", [spec])
+    monkeypatch.setattr(bench_options, "PEER_NAMES", ["fake"])
     path = tmp_path / "b.json"
     assert bench.main(["--n", "1", "--ops", "quat_to_matrix", "--no-backward", "--min-run-time", "0.001",
                        "--allocator", "none", "--json", str(path)]) == 0
@@ -97,8 +98,8 @@ def test_disagreeing_peer_is_marked_and_not_counted(tmp_path, capsys, monkeypatc
 
 def test_missing_peer_is_skipped_with_install_hint(capsys, monkeypatch):
     spec = ("ghost", "no_such_module_torchquat_test", lambda mod: {}, True, None)
-    monkeypatch.setattr(bench_ops, "PEER_SPECS", [spec])
-    monkeypatch.setattr(bench_ops, "PEER_NAMES", ["ghost"])
+    monkeypatch.setattr(bench_peers, "PEER_SPECS", [spec])
+    monkeypatch.setattr(bench_options, "PEER_NAMES", ["ghost"])
     assert bench.main(["--n", "1", "--ops", "quat_to_matrix", "--no-backward", "--min-run-time", "0.001",
                        "--allocator", "none"]) == 0
     out = capsys.readouterr().out
@@ -116,7 +117,7 @@ def test_bad_arguments_exit_2(capsys):
 
 
 def test_json_into_a_missing_folder_is_refused_before_the_run(tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr(bench._ops, "OPS_BY_NAME", {})  # (a run would fail: the check comes first)
+    monkeypatch.setattr(bench_ops, "make_inputs", None)  # (a run would fail: the check comes first)
     assert bench.main(["--json", str(tmp_path / "no" / "x.json"), "--allocator", "none"]) == 2
     err = capsys.readouterr().err
     assert "--json" in err and "no such folder" in err
@@ -136,7 +137,7 @@ def test_no_reexec_inside_a_test_runner():
 def test_rounds_go_over_every_op_and_keep_each_cells_fastest_median_at_every_batch_size(monkeypatch, tmp_path):
     # a slow spell on the machine: every cell is fast in its second round only, large batches too
     # (in one go, a slow minute had taken a whole N = 1e6 cell to 0.6x its speed)
-    real_callable, timed = bench._callable, []
+    real_callable, timed = runner._callable, []
 
     def tagged(impl, inputs, backward, seed):
         fn = real_callable(impl, inputs, backward, seed)
@@ -152,7 +153,7 @@ def test_rounds_go_over_every_op_and_keep_each_cells_fastest_median_at_every_bat
         median = 2.0 if name == "floor" else 1.0 if timed.count(name) % 3 == 2 else 3.0
         return timing.Timing(median=median, iqr=0.0, runs=3, calls=3)
 
-    monkeypatch.setattr(bench, "_callable", tagged)
+    monkeypatch.setattr(runner, "_callable", tagged)
     monkeypatch.setattr(timing, "measure", fake_measure)
     path = tmp_path / "bench.json"
     args = ["--n", "1", "20000", "--ops", "quat_multiply", "quat_to_matrix", "--peers", "none", "--no-backward",
@@ -224,7 +225,7 @@ def test_a_run_stopped_in_a_later_round_keeps_every_op_with_the_rounds_it_finish
 
 def test_bad_threads_and_seed_exit_2_without_a_traceback(capsys):
     assert bench.main(["--threads", "0", "--ops", "quat_to_matrix", "--allocator", "none"]) == 2
-    assert "--threads must be >= 1" in capsys.readouterr().err
+    assert "--threads must be from 1 to 1024, got 0" in capsys.readouterr().err
     assert bench.main(["--seed", str(2 ** 64), "--ops", "quat_to_matrix", "--allocator", "none"]) == 2
     assert "--seed" in capsys.readouterr().err
 
@@ -235,14 +236,14 @@ _FAST = ["--ops", "quat_to_matrix", "--peers", "none", "--no-backward", "--min-r
 
 def test_an_error_at_a_later_size_keeps_what_finished(tmp_path, capsys, monkeypatch):
     # an allocation failure at a large N used to lose the whole run, table and JSON
-    make_inputs = bench._ops.make_inputs
+    make_inputs = bench_ops.make_inputs
 
     def failing(n, *args, **kwargs):
         if n == 7:
             raise RuntimeError("can't allocate memory")
         return make_inputs(n, *args, **kwargs)
 
-    monkeypatch.setattr(bench._ops, "make_inputs", failing)
+    monkeypatch.setattr(bench_ops, "make_inputs", failing)
     path = tmp_path / "b.json"
     assert bench.main(["--n", "1", "7", "--json", str(path), *_FAST]) == 1
     captured = capsys.readouterr()
@@ -254,29 +255,29 @@ def test_an_error_at_a_later_size_keeps_what_finished(tmp_path, capsys, monkeypa
 
 
 def test_a_json_that_cannot_be_written_is_exit_2_and_keeps_the_old_file(tmp_path, capsys, monkeypatch):
-    import torchquat.io.streaming as streaming
+    import torchquat.io.files as files
 
     def no_space(*_):
         raise OSError(28, "No space left on device")
 
     path = tmp_path / "b.json"
     path.write_text("old")
-    monkeypatch.setattr(streaming.os, "replace", no_space)
+    monkeypatch.setattr(files.os, "replace", no_space)
     assert bench.main(["--n", "1", "--json", str(path), *_FAST]) == 2
     assert "No space left on device" in capsys.readouterr().err
     assert path.read_text() == "old" and os.listdir(tmp_path) == ["b.json"]
 
 
 @pytest.mark.parametrize("option, message", [
-    (["--rounds", "0"], "--rounds must be >= 1"),
-    (["--min-run-time", "-1"], "--min-run-time must be >= 0"),
-    (["--min-run-time", "nan"], "--min-run-time must be >= 0"),
+    (["--rounds", "0"], "--rounds must be from 1 to 1000, got 0"),
+    (["--min-run-time", "-1"], "--min-run-time must be from 0 to 3600, got -1.0"),
+    (["--min-run-time", "nan"], "--min-run-time must be from 0 to 3600, got nan"),
     (["--json", ""], "--json needs a file name"),
     (["--peers", "none", "roma"], "name peers or none, not both"),
 ])
 def test_options_out_of_range_exit_2_before_the_run(option, message, capsys, monkeypatch):
     # (--rounds 0 was clamped to 1, --json "" wrote nothing and --peers none roma dropped none, silently)
-    monkeypatch.setattr(bench._ops, "make_inputs", None)  # (a run would fail: the checks come first)
+    monkeypatch.setattr(bench_ops, "make_inputs", None)  # (a run would fail: the checks come first)
     assert bench.main(["--ops", "quat_to_matrix", "--allocator", "none", *option]) == 2
     assert message in capsys.readouterr().err
 
@@ -305,8 +306,8 @@ def test_a_peer_whose_agreement_check_raises_is_err_not_different(tmp_path, caps
 
     crashing = bench_ops.Impl(lambda q: q, lambda d: (d["q"],), "identity", to_tq=broken_output)
     spec = ("fake", "torch", lambda mod: {"quat_to_matrix": crashing}, True, None)
-    monkeypatch.setattr(bench_ops, "PEER_SPECS", [spec])
-    monkeypatch.setattr(bench_ops, "PEER_NAMES", ["fake"])
+    monkeypatch.setattr(bench_peers, "PEER_SPECS", [spec])
+    monkeypatch.setattr(bench_options, "PEER_NAMES", ["fake"])
     path = tmp_path / "b.json"
     assert bench.main(["--n", "1", "--ops", "quat_to_matrix", "--no-backward", "--min-run-time", "0.001",
                        "--rounds", "1", "--allocator", "none", "--json", str(path)]) == 0
@@ -324,78 +325,3 @@ def test_mallopt_line_states_the_threshold_it_sets(monkeypatch):
     monkeypatch.delenv("GLIBC_TUNABLES", raising=False)
     line = timing.steady_allocator("mallopt")
     assert "2^31-1" in line and "2 GiB" in line and "equivalent" not in line
-
-
-def test_the_in_process_ab_tool_times_both_variants_in_turn(tmp_path, capsys):
-    # tools/ab_compiled.py (a developer's tool, not installed): each variant's setup runs before its
-    # compile and before each of its measurements, and the table has one row per op
-    from pathlib import Path
-    import runpy
-
-    tool = Path(__file__).resolve().parents[1] / "tools" / "ab_compiled.py"
-    variants = tmp_path / "variants.py"
-    log = tmp_path / "calls.txt"
-    variants.write_text(f"def first():\n    open({str(log)!r}, 'a').write('a')\n"
-                        f"def second():\n    open({str(log)!r}, 'a').write('b')\n"
-                        "VARIANTS = {'a': first, 'b': second}\n")
-    main = runpy.run_path(str(tool))["main"]
-    assert main([str(variants), "--ops", "quat_multiply", "--n", "2048", "--rounds", "2",
-                 "--min-run-time", "0.001"]) == 0
-    out = capsys.readouterr().out
-    row = [line for line in out.splitlines() if line.startswith("| quat_multiply |")]
-    assert len(row) == 1 and float(row[0].split("|")[4]) > 0
-    assert log.read_text() == "ab" + "ab" + "ba"  # (the two compiles, then the rounds in alternating order)
-    assert "float32 rows, forward," in out
-    # --backward: the training graphs, forward and torch.autograd.grad
-    assert main([str(variants), "--ops", "quat_multiply", "--n", "2048", "--rounds", "1",
-                 "--min-run-time", "0.001", "--backward"]) == 0
-    out = capsys.readouterr().out
-    assert "float32 rows, forward+backward," in out
-    row = [line for line in out.splitlines() if line.startswith("| quat_multiply |")]
-    assert len(row) == 1 and float(row[0].split("|")[4]) > 0
-    with pytest.raises(SystemExit):  # (a variants file needs two entries)
-        variants.write_text("VARIANTS = {'a': lambda: None}\n")
-        main([str(variants), "--ops", "quat_multiply"])
-
-
-def test_the_layout_model_computes_euler_to_quat_five_ways(capsys):
-    # tools/layout_model.py (a developer's tool, not installed): every variant of the C++ model,
-    # gathered or shuffled loads, scattered or transposed stores, planes, gives the quaternions
-    # of torchquat.euler_to_quat, so the model times the shipped arithmetic
-    from pathlib import Path
-    import runpy
-
-    tool = runpy.run_path(str(Path(__file__).resolve().parents[1] / "tools" / "layout_model.py"))
-    why = tool["_supported"]()
-    if why:
-        pytest.skip(f"the layout model cannot run here: {why}")
-    assert tool["main"](["--n", "4100", "--rounds", "1", "--min-run-time", "0.001"]) == 0
-    rows = [line.split("|") for line in capsys.readouterr().out.splitlines() if line.startswith("| ")][1:]
-    names = [row[1].strip() for row in rows]
-    assert names[1:] == list(tool["VARIANTS"]) and names[0].startswith("floor")
-    for row in rows[1:]:
-        assert float(row[2]) >= 0 and float(row[4]) < 1e-6, row
-
-
-def test_the_rows_or_planes_tool_computes_euler_to_quat_in_every_layout(monkeypatch, capsys):
-    # tools/rows_or_planes.py (a developer's tool, not installed): each Euler -> quat variant, rows or
-    # planes in and out, gives torchquat's quaternions (checked before timing), and the table has one
-    # row per variant, the floor and torchquat's kernel. (The eager backend: no C++ compile here.)
-    from pathlib import Path
-    import runpy
-
-    import torchquat._dispatch as dispatch
-
-    monkeypatch.setattr(dispatch, "_backend", "eager")
-    monkeypatch.setattr(dispatch, "_compiled", {})
-    monkeypatch.setattr(dispatch, "COMPILED_FROM_SCALE", 0)
-    tool = runpy.run_path(str(Path(__file__).resolve().parents[1] / "tools" / "rows_or_planes.py"))
-    assert tool["main"](["--n", "1000", "--rounds", "1", "--min-run-time", "0.001", "--backend", "eager"]) == 0
-    assert not torch.compiler.is_compiling() and not __import__("torchquat").compiled_kernels_enabled()
-    rows = [line.split("|") for line in capsys.readouterr().out.splitlines() if line.startswith("| ")][1:]
-    names = [row[1].strip() for row in rows]
-    assert names[0].startswith("floor") and names[1:-1] == list(tool["VARIANTS"]) and names[-1].startswith("torchquat")
-    errors = {row[1].strip(): row[4].strip() for row in rows}
-    checked = [name for name in names if "E->q" in name or name.startswith("torchquat")]
-    assert len(checked) == 4 and all(float(errors[name]) < 1e-6 for name in checked), errors
-    assert all(float(row[2]) > 0 for row in rows)

@@ -67,7 +67,7 @@ def test_table_has_every_column_and_the_tolerances(default_run):
 
 
 def test_one_row_at_a_time_rows_for_every_function_with_a_one_row_path(default_run):
-    # a CPU call on one row computes in Python floats (torchquat._one_row): checked against SciPy too
+    # a call on one row may take a path of its own: checked against SciPy too
     one_row = {r["function"] for r in default_run[3]["rows"] if "one row at a time" in r["case"]}
     assert one_row == {"quat_to_matrix", "matrix_to_quat", "axis_angle_to_quat", "quat_to_axis_angle",
                        "axis_angle_to_matrix", "matrix_to_axis_angle", "quat_rotate", "quat_multiply",
@@ -203,12 +203,12 @@ def test_a_seed_out_of_range_is_a_usage_error(tmp_path):
 
 
 def test_a_json_that_cannot_be_written_is_exit_2_not_a_failed_check(tmp_path, monkeypatch):
-    import torchquat.io.streaming as streaming
+    import torchquat.io.files as files
 
     def no_space(*_):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(streaming.os, "replace", no_space)
+    monkeypatch.setattr(files.os, "replace", no_space)
     status, out, err, data = run_crosscheck(tmp_path, "--n", "3", "-q")
     assert status == 2 and "No space left on device" in err and data is None
     assert " 0 failed" in out

@@ -279,13 +279,13 @@ def test_python_api_messages_do_not_speak_only_of_command_line_options(tmp_path)
 
 
 def test_a_failed_rename_names_the_output_not_the_temporary_file(tmp_path, monkeypatch, capsys):
-    import torchquat.io.streaming as streaming
+    import torchquat.io.files as files
 
     def refused(src, dst):  # as os.replace fails: its message names both files
         raise PermissionError(13, "Permission denied", src, None, dst)
 
     out = tmp_path / "out.tum"
-    monkeypatch.setattr(streaming.os, "replace", refused)
+    monkeypatch.setattr(files.os, "replace", refused)
     assert cli.main(["convert", torchquat_sample(), str(out)]) == 2
     err = capsys.readouterr().err
     assert f"{out}: could not be replaced: Permission denied" in err and ".tmp" not in err

@@ -15,8 +15,9 @@ import pytest
 from torchquat.io import PoseFileError, convert_file, read_poses
 from torchquat.io import fastpath
 from torchquat.io.checks import _orthogonality_error_and_det
-from torchquat.io.numtext import Floats, Integers, Nanoseconds, format_nanoseconds, format_table
+from torchquat.io.numtext import Floats, Integers, Nanoseconds, format_nanoseconds
 from torchquat.io.textparse import LineChunk, iter_line_chunks, parse_table
+from torchquat.io.textwrite import format_table
 
 HAS_POLARS = fastpath.polars() is not None
 needs_polars = pytest.mark.skipif(not HAS_POLARS, reason="polars not installed (pip install torchquat[fast])")

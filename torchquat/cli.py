@@ -10,12 +10,15 @@ import importlib
 import sys
 from typing import List, Optional
 
-__all__ = ["main", "build_parser"]
+__all__ = ["main", "build_parser", "ArgumentParser", "MAX_CHUNK_SIZE"]
+
+MAX_CHUNK_SIZE = 10_000_000  # lines: a chunk this large already takes gigabytes; beyond, allocation fails
 
 _LAZY = {
     "crosscheck": ("torchquat.crosscheck", "every conversion against pytorch-kinematics and SciPy: a table of "
                    "max errors, exit 1 on failure"),
     "bench": ("torchquat.bench", "the benchmark table against whichever peers are installed"),
+    "eval": ("torchquat.traj.cli", "trajectory error of ESTIMATE against REFERENCE (APE or RPE, evo's numbers)"),
 }
 
 _MAIN_EPILOG = """examples:
@@ -23,6 +26,7 @@ _MAIN_EPILOG = """examples:
   torchquat convert trajectory.tum angles.csv --to euler:ZYX --degrees
   torchquat crosscheck
   torchquat bench
+  torchquat eval groundtruth.txt estimate.txt --align --json ape.json
 """
 
 _CONVERT_EPILOG = """formats (from the extension, or --from / --to):
@@ -32,6 +36,9 @@ _CONVERT_EPILOG = """formats (from the extension, or --from / --to):
   csv    .csv   plain, header [timestamp,][x,y,z,] rotation columns (qw,qx,qy,qz | ZYX_1,... | r00..r22 ...)
   npz    .npz   arrays timestamp, position, rotation and a string representation
   npy    .npy   the rotation array alone
+  bvh    .bvh   motion capture (HIERARCHY + MOTION): in, and out from any motion (--to bvh)
+  amass  .npz   AMASS poses (T, 3J) axis-angle, trans, mocap_frame[_]rate; a motion in .npz/.npy
+                holds (T, J, k) rotations (--to rot6d ...) with joint names, parents, offsets
 
 checks: a malformed line stops the conversion (file:line on stderr, exit 2, OUT untouched);
 quaternions with |norm - 1| < 1e-3 are normalised, matrices with 1e-5 <= max|R^T R - I| < 1e-2 are
@@ -44,11 +51,24 @@ examples:
   torchquat convert v102.tum v102_euroc.csv --to euroc
   torchquat convert freiburg1_xyz-groundtruth.txt angles.csv --to euler:ZYX --degrees
   torchquat convert trajectory.tum rot6d.npz --to rot6d --dtype float32
+  torchquat convert walk.bvh walk.npz --to rot6d
+  torchquat convert walk.npz walk.bvh
 """
 
 
 def _formatter(prog):
     return argparse.RawDescriptionHelpFormatter(prog, max_help_position=32)
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse's parser, but a usage error is one line on stderr (and exit status 2).
+
+    argparse prints the whole usage before its message; on a long command line the message
+    is lost under it. Subcommand parsers are made of the same class.
+    """
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 def add_convert_arguments(parser: argparse.ArgumentParser) -> None:
@@ -61,14 +81,15 @@ def add_convert_arguments(parser: argparse.ArgumentParser) -> None:
                         "(default: from OUT's extension; plain outputs hold quat)")
     parser.add_argument("--from", dest="from_format", metavar="FORMAT",
                         help="IN's format when its extension and content do not tell: tum, kitti, euroc, csv, "
-                        "npz, npy")
+                        "npz, npy, bvh, amass")
     parser.add_argument("--degrees", action="store_true", help="Euler angles in degrees")
     parser.add_argument("--dtype", choices=("float32", "float64"), default="float64",
                         help="precision of the values written, with enough digits to round-trip it "
                         "(default float64: at most 17 significant digits; float32: 9)")
     parser.add_argument("--times", metavar="FILE", help="KITTI times.txt: the time of each row of a KITTI IN")
     parser.add_argument("--chunk-size", type=int, default=None, metavar="N",
-                        help="lines read and written at a time (default 10000); memory is flat in the file size")
+                        help=f"lines read and written at a time, 1 to {MAX_CHUNK_SIZE:,} (default 10000); memory is "
+                        "flat in the file size")
 
 
 def run_convert(args: argparse.Namespace) -> int:
@@ -78,22 +99,28 @@ def run_convert(args: argparse.Namespace) -> int:
     import torch
 
     from .io import DEFAULT_CHUNK_SIZE, Report, convert_file
+    from .io.mocap import convert_motion, is_motion_conversion
     # Chunks of ~10k rows are too small for torch's intra-op threads to pay, and on a busy machine
     # their spin-waiting is ruinous (measured, 2 cores, load 4: matrix_to_quat on 1M rows in 10k
     # chunks 12 s with 2 threads, 0.24 s with 1). The second core parses ahead instead (io.streaming).
     torch.set_num_threads(1)
     report = Report()
     chunk_size = DEFAULT_CHUNK_SIZE if args.chunk_size is None else args.chunk_size
-    if chunk_size < 1:
-        return _fail("--chunk-size must be a positive number of lines")
-    if args.degrees and not (args.to or "").lower().startswith("euler"):
-        return _fail("--degrees applies to Euler angles only: use it with --to euler:SEQ")
+    problem = _convert_usage_problem(args, chunk_size)
+    if problem:
+        return _fail(problem)
     progress = _progress_bar(args.input)
     try:
-        rows = convert_file(args.input, args.output, to=args.to, from_format=args.from_format, degrees=args.degrees,
-                            dtype=np.float32 if args.dtype == "float32" else np.float64, times=args.times,
-                            chunk_size=chunk_size, report=report,
-                            on_chunk=None if progress is None else progress.update_to)
+        motion = is_motion_conversion(args.input, args.output, args.to, args.from_format)  # BVH, AMASS (io.mocap)
+        if motion:
+            rows = convert_motion(args.input, args.output, to=args.to, from_format=args.from_format,
+                                  degrees=args.degrees, dtype=np.float32 if args.dtype == "float32" else np.float64,
+                                  report=report)
+        else:
+            rows = convert_file(args.input, args.output, to=args.to, from_format=args.from_format, degrees=args.degrees,
+                                dtype=np.float32 if args.dtype == "float32" else np.float64, times=args.times,
+                                chunk_size=chunk_size, report=report,
+                                on_chunk=None if progress is None else progress.update_to)
     except (ValueError, OSError) as err:
         return _fail(_describe(err))
     finally:
@@ -101,8 +128,23 @@ def run_convert(args: argparse.Namespace) -> int:
             progress.close()
     for line in report.lines():
         print(f"torchquat convert: {line}", file=sys.stderr)
-    print(f"torchquat convert: wrote {rows} poses to {args.output} ({args.dtype})", file=sys.stderr)
+    print(f"torchquat convert: wrote {rows} {'frames' if motion else 'poses'} to {args.output} ({args.dtype})",
+          file=sys.stderr)
     return 0
+
+
+def _convert_usage_problem(args: argparse.Namespace, chunk_size: int) -> Optional[str]:
+    """What is wrong with ``convert``'s options (named, with what is expected and the value), or None."""
+    if not 1 <= chunk_size <= MAX_CHUNK_SIZE:
+        return f"--chunk-size must be from 1 to {MAX_CHUNK_SIZE} lines, got {chunk_size}"
+    for name, value, expected in (("IN", args.input, "an input file"), ("OUT", args.output, "an output file"),
+                                  ("--to", args.to, "a format or a rotation representation"),
+                                  ("--from", args.from_format, "a format"), ("--times", args.times, "a times file")):
+        if value is not None and not value.strip():
+            return f"{name} is empty: name {expected}"
+    if args.degrees and not (args.to or "").lower().startswith("euler"):
+        return "--degrees applies to Euler angles only: use it with --to euler:SEQ"
+    return None
 
 
 def _describe(err: Exception) -> str:
@@ -135,7 +177,7 @@ def _progress_bar(path: str):
 
 def build_parser(lazy: Optional[str] = None) -> argparse.ArgumentParser:
     """The argument parser; the ``lazy`` subcommand's module is imported to add its arguments."""
-    parser = argparse.ArgumentParser(prog="torchquat", description="Batched, differentiable 3D rotations: "
+    parser = ArgumentParser(prog="torchquat", description="Batched, differentiable 3D rotations: "
                                      "pose-file conversion, cross-checks and benchmarks.",
                                      epilog=_MAIN_EPILOG, formatter_class=_formatter)
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")

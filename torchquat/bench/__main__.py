@@ -1,5 +1,8 @@
-"""``python -m torchquat.bench``: the same as ``torchquat bench``."""
+"""``python -m torchquat.bench``: the same program as ``torchquat bench``."""
 
-from . import main
+import sys
 
-raise SystemExit(main())
+from ..cli import main
+
+if __name__ == "__main__":
+    sys.exit(main(["bench", *sys.argv[1:]]))

@@ -1,8 +1,15 @@
-"""The markdown table and the JSON file."""
+"""The markdown table, its header and footer, and the JSON file."""
 
+import os
+import platform
 from typing import Dict, List, Optional, Sequence
 
-from ..io.streaming import write_json as atomic_json
+import torch
+
+import torchquat
+
+from ..io import write_json as atomic_json
+from .timing import FLOOR_DEFINITION
 
 TORCHQUAT = "torchquat"
 COMPILED = "torchquat compiled"
@@ -117,6 +124,74 @@ def markdown(results: List[dict], labels: Dict[str, str], ns: Sequence[int], pee
 
 def write_json(path: str, meta: dict, results: List[dict], torch_peers: Sequence[str], legend: dict,
                agreement: List[dict]) -> None:
+    """Write every number of the run to ``path`` (atomically: a failed write keeps an old file)."""
     data = {"meta": meta, "results": results, "summary": summarize(results, torch_peers),
             "agreement": agreement, "legend": legend}
     atomic_json(path, data)
+
+
+def cpu_model() -> str:
+    """The CPU's model name (Linux: /proc/cpuinfo; elsewhere ``platform.processor()``), or ``""``."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as stream:
+            for line in stream:
+                if line.lower().startswith("model name"):
+                    return line.partition(":")[2].strip()
+    except OSError:
+        pass
+    return platform.processor() or ""
+
+
+def where(s) -> str:
+    """The machine the run timed (threads and CPU, or the device)."""
+    if s.device.type == "cpu":
+        return f"{s.threads} thread(s), {platform.machine()} {cpu_model()} ({os.cpu_count()} CPUs)"
+    name = torch.cuda.get_device_name(s.device) if s.device.type == "cuda" else s.device
+    return f"{s.device.type} device {name}"
+
+
+def header(s, allocator: str, peers, active, outcome, tol: float, install_hint: str) -> List[str]:
+    """The lines above the tables: versions, machine, method, peers, and how the run ended."""
+    lines = [
+        "## torchquat bench",
+        "",
+        f"torchquat {torchquat.__version__}, torch {torch.__version__}, {str(s.dtype).replace('torch.', '')}, "
+        f"{where(s)}, Python {platform.python_version()}",
+        f"Medians of torch.utils.benchmark blocked_autorange(min_run_time={s.min_run_time}) (at least 3 "
+        f"measurements); the fastest such median of {s.rounds} round(s), each of which times every op and "
+        "implementation at one N in turn; fwd+bwd = the call plus torch.autograd.grad with a preallocated output gradient.",
+        allocator,
+        "Peers: " + (", ".join(f"{p.name} {p.version} (import {p.import_s:.2f} s)" for p in active) or "none"),
+    ]
+    if outcome.stopped:
+        lines.append(f"Stopped by {outcome.stopped} after {outcome.done} of {outcome.total} (N, op) measurements: "
+                     "the table holds the finished ones (with the rounds that finished).")
+    lines += [f"Skipped {p.name}: {p.error.splitlines()[0]} -- install the peers with: {install_hint}"
+              for p in peers if p.error is not None]
+    if s.compiled:
+        lines.append(f"{COMPILED}: torchquat with use_compiled_kernels(True); compile time is "
+                     "excluded (warm-up calls). speed-up compares eager torchquat; compiled speed-up and "
+                     "compiled / floor the compiled kernels.")
+    lines.append("speed-up = fastest agreeing torch peer / torchquat (SciPy, on NumPy, is not counted); "
+                 "≠ = the peer's output differs from torchquat's beyond "
+                 f"{tol:g} (compared as matrices on generic rotations): not counted; err = it raised.")
+    return lines
+
+
+def footer(legend: Dict[str, Dict[str, str]], labels: Dict[str, str], agreement: List[dict], results: List[dict],
+           elapsed: float) -> List[str]:
+    """The lines below the tables: the floor, every call timed, disagreements and errors."""
+    lines = ["Floor: " + FLOOR_DEFINITION + ".", "", "Calls timed:"]
+    lines += [f"- {labels[op]}: " + "; ".join(f"{k}: `{v}`" for k, v in calls.items()) for op, calls in legend.items()]
+    for a in agreement:
+        if not a["agrees"]:
+            lines.append(f"- err {a['impl']} on {a['op']}: the agreement check raised {a['error']}" if a["error"]
+                         else f"- ≠ {a['impl']} on {a['op']}: max abs error {a['max_abs_err']}")
+    errors: Dict[tuple, List[str]] = {}
+    for r in results:
+        if r.get("error"):
+            errors.setdefault((r["impl"], r["op"], r["pass"], r["error"]), []).append(f"{r['n']:,}")
+    for (impl_name, op_name, pss, error), sizes in errors.items():
+        lines.append(f"- err {impl_name} on {op_name} {pss} (N = {', '.join(sizes)}): {error}")
+    lines.append(f"Total bench time {elapsed:.0f} s.")
+    return lines

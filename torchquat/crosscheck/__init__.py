@@ -32,14 +32,14 @@ from typing import List, Optional, Sequence
 
 import torch
 
-from ..io.poses import PoseFileError
-from ..io.streaming import output_folder_problem, write_json
+from ..io import PoseFileError, output_folder_problem, write_json
 from ._core import Context, Row, family_summary, format_table
 
 __all__ = ["add_arguments", "run", "main", "crosscheck"]
 
 PK_MISSING = 'pytorch-kinematics is not installed: pip install pytorch-kinematics (or pip install "torchquat[test]")'
 SCIPY_MISSING = 'SciPy is not installed: pip install scipy (or pip install "torchquat[test]")'
+MAX_N = 1_000_000  # random samples per set: far beyond a useful check, short of exhausting memory
 ORACLES = {"scipy": ("scipy.spatial.transform", "scipy", SCIPY_MISSING),
            "pk": ("pytorch_kinematics.transforms", "pytorch-kinematics", PK_MISSING)}
 
@@ -47,7 +47,7 @@ ORACLES = {"scipy": ("scipy.spatial.transform", "scipy", SCIPY_MISSING),
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the cross-check's options to ``parser`` (used by ``torchquat crosscheck``)."""
     parser.add_argument("--n", type=int, default=2000, metavar="N",
-                        help="random samples per set (default 2000); singular sets are fixed")
+                        help=f"random samples per set, 1 to {MAX_N:,} (default 2000); singular sets are fixed")
     parser.add_argument("--dtype", choices=("float64", "float32"), default="float64",
                         help="dtype torchquat computes in (default float64); tolerances follow it")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random inputs (default 0)")
@@ -105,6 +105,18 @@ def crosscheck(n: int = 2000, dtype: torch.dtype = torch.float64, seed: int = 0,
     return ctx.rows
 
 
+def _usage_problem(args: argparse.Namespace) -> Optional[str]:
+    """What is out of range in the options (named, with the range and the value), or None."""
+    if not 1 <= args.n <= MAX_N:
+        return f"--n must be from 1 to {MAX_N}, got {args.n}"
+    if not 0 <= args.seed < 2 ** 63:
+        return f"--seed must be from 0 to {2 ** 63 - 1}, got {args.seed}"
+    if args.json is not None and not args.json.strip():
+        return "--json needs a file name"
+    problem = args.json and output_folder_problem(args.json)  # (before the run, not after it)
+    return f"--json {problem}" if problem else None
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the cross-check for parsed ``args``; print the report.
 
@@ -112,15 +124,9 @@ def run(args: argparse.Namespace) -> int:
         0 when every row is within its tolerance, 1 when some row is not, 2 for a usage error
         or when none of the requested oracles is installed.
     """
-    if args.n < 1:
-        print(f"torchquat crosscheck: --n must be at least 1, got {args.n}", file=sys.stderr)
-        return 2
-    if not 0 <= args.seed < 2 ** 63:
-        print(f"torchquat crosscheck: --seed must be between 0 and 2**63 - 1, got {args.seed}", file=sys.stderr)
-        return 2
-    problem = args.json and output_folder_problem(args.json)  # (before the run, not after it)
+    problem = _usage_problem(args)
     if problem:
-        print(f"torchquat crosscheck: --json {problem}", file=sys.stderr)
+        print(f"torchquat crosscheck: {problem}", file=sys.stderr)
         return 2
     names = ("scipy", "pk") if args.oracle == "all" else (args.oracle,)
     dtype = torch.float64 if args.dtype == "float64" else torch.float32

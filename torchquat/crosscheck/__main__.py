@@ -1,8 +1,8 @@
-"""``python -m torchquat.crosscheck``: the same as ``torchquat crosscheck``."""
+"""``python -m torchquat.crosscheck``: the same program as ``torchquat crosscheck``."""
 
 import sys
 
-from . import main
+from ..cli import main
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main(["crosscheck", *sys.argv[1:]]))

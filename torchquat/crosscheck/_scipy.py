@@ -73,7 +73,7 @@ def run_checks(ctx: Context, transform, n: int, generator: torch.Generator) -> N
     sp = _SciPy(transform)
     sets = rotation_sets(n, generator)
     _conversions(ctx, sp, sets)
-    # the same rows one at a time: a CPU call on one row computes in Python floats (torchquat._one_row)
+    # the same rows one at a time: a call on one row may take a path of its own, checked like the batch
     _conversions(ctx, sp, {f"{case}, one row at a time": {k: v[:ONE_ROW_ROWS] for k, v in s.items()}
                            for case, s in sets.items()}, wrap=one_row_each)
     _algebra(ctx, sp, n, generator)

@@ -7,13 +7,20 @@ Example:
 """
 
 from .checks import Report
+from .detect import FORMATS, POSE_FORMATS, detect_format, output_plan
+from .files import atomic_output, output_folder_problem, write_json
 from .poses import PoseFileError, Poses
-from .streaming import (
-    DEFAULT_CHUNK_SIZE, FORMATS, POSE_FORMATS, atomic_output, output_folder_problem, convert_file, detect_format, iter_poses, output_plan,
-    read_poses, read_times, write_poses,
-)
+from .streaming import DEFAULT_CHUNK_SIZE, convert_file, iter_poses, read_poses, read_times, write_poses
 from .transforms import ConvertRotation
+from .motion import Motion, Skeleton  # motion capture (SPEC section 8)
+from .bvh import read_bvh
+from .bvh_write import write_bvh
+from .amass import read_amass
+from .mocap import MOTION_FORMATS, convert_motion, read_motion, write_motion
 
 __all__ = ["Poses", "PoseFileError", "Report", "read_poses", "write_poses", "iter_poses", "convert_file",
-           "detect_format", "output_plan", "read_times", "atomic_output", "output_folder_problem", "ConvertRotation", "FORMATS",
-           "POSE_FORMATS", "DEFAULT_CHUNK_SIZE"]
+           "detect_format", "output_plan", "read_times", "atomic_output", "output_folder_problem", "write_json",
+           "ConvertRotation", "FORMATS",
+           "POSE_FORMATS", "DEFAULT_CHUNK_SIZE",
+           "Motion", "Skeleton", "read_bvh", "write_bvh", "read_amass", "read_motion", "write_motion",
+           "convert_motion", "MOTION_FORMATS"]

@@ -16,7 +16,7 @@ from typing import List, Tuple
 import numpy as np
 import torch
 
-from ..registry import convert
+from .. import convert
 from .poses import PoseFileError
 
 __all__ = ["Report", "normalize_quaternions", "check_matrices", "QUAT_NORM_TOLERANCE",

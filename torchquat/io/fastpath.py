@@ -22,6 +22,8 @@ from typing import Optional, Sequence
 
 import numpy as np
 
+from .numtext import Floats, Integers, Nanoseconds
+
 __all__ = ["polars", "use_polars", "parse_block", "write_table"]
 
 _IMPORT_LOCK = threading.Lock()
@@ -81,11 +83,10 @@ def parse_block(block: bytes, count: int, columns: Sequence[int], delimiter: Opt
 
 
 def write_table(columns: Sequence, separator: str = " ") -> Optional[bytes]:
-    """Format columns (see :func:`torchquat.io.numtext.format_table`) as text lines, or None without polars."""
+    """Format columns (see :func:`torchquat.io.numtext.format_columns`) as text lines, or None without polars."""
     pl = polars()
     if pl is None:
         return None
-    from .numtext import Floats, Integers, Nanoseconds
     series = []
     for column in columns:
         values = column.values

@@ -13,12 +13,13 @@ import numpy as np
 import torch
 
 from .checks import Report, check_matrices, normalize_quaternions
-from .numtext import Floats, Integers, Nanoseconds, format_floats, format_integers, format_nanoseconds, format_table
+from .numtext import Floats, Integers
 from .poses import PoseFileError, Poses
 from .textparse import decimal_seconds_to_ns, iter_line_chunks, parse_table, read_header
+from .textwrite import format_table, positions_of, time_column
 
-__all__ = ["read_tum", "read_kitti", "read_euroc", "TumWriter", "KittiWriter", "EurocWriter",
-           "time_fields", "time_column", "EUROC_HEADER", "euroc_header_problem"]
+__all__ = ["read_tum", "read_kitti", "read_euroc", "TumWriter", "KittiWriter", "EurocWriter", "EUROC_HEADER",
+           "euroc_header_problem"]
 
 EUROC_HEADER = (b"#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],"
                 b"q_RS_w [],q_RS_x [],q_RS_y [],q_RS_z []\n")
@@ -124,40 +125,6 @@ def _integer_ns(path, table) -> np.ndarray:
             if not -2 ** 63 <= value < 2 ** 63:
                 raise PoseFileError(path, f"EuRoC timestamp {value} does not fit int64 nanoseconds", int(line))
         raise  # (unreachable: one of the texts failed)
-
-
-def time_column(poses: Poses, report: Report, row: int):
-    """The time column for :func:`~torchquat.io.numtext.format_table`.
-
-    Exact ns as ``%d.%09d`` when known; whole seconds (KITTI's row index) as integers, which
-    read back to the same float and are much cheaper to write; else float seconds.
-    """
-    if poses.timestamps_ns is not None:
-        return Nanoseconds(poses.timestamps_ns)
-    if poses.timestamps is None:
-        report.note("input has no timestamps: the row index is written as the time")
-        return Integers(np.arange(row, row + len(poses), dtype=np.int64))
-    seconds = np.asarray(poses.timestamps, dtype=np.float64)
-    if len(seconds) and np.all(np.abs(seconds) < 2.0 ** 53) and np.array_equal(seconds, np.floor(seconds)):
-        return Integers(seconds.astype(np.int64))  # np.floor keeps -0.0 and nan/inf fail the test above
-    return Floats(seconds[:, None])
-
-
-def time_fields(poses: Poses, report: Report, row: int) -> np.ndarray:
-    """Byte fields for the time column (numpy formatter): see :func:`time_column`."""
-    column = time_column(poses, report, row)
-    if isinstance(column, Nanoseconds):
-        return format_nanoseconds(column.values)
-    if isinstance(column, Integers):
-        return format_integers(column.values)
-    return format_floats(column.values)
-
-
-def positions_of(poses: Poses, dtype, report: Report) -> np.ndarray:
-    if poses.positions is None:
-        report.note("input has no positions: zeros written")
-        return np.zeros((len(poses), 3), dtype=dtype)
-    return poses.positions.numpy().astype(dtype, copy=False)
 
 
 class _TextWriter:

@@ -18,7 +18,7 @@ from typing import List, NamedTuple, Sequence
 
 import numpy as np
 
-__all__ = ["format_rows", "format_floats", "format_nanoseconds", "format_integers", "format_table", "Floats",
+__all__ = ["format_rows", "format_floats", "format_nanoseconds", "format_integers", "format_columns", "Floats",
            "Integers", "Nanoseconds"]
 
 _MARGIN = 1e-6  # in units of the last of P digits; the arithmetic error is about 1e-7 of a unit
@@ -306,12 +306,12 @@ def format_rows(fields: Sequence[np.ndarray], separator: str = " ") -> bytes:
 
 
 class Floats(NamedTuple):
-    """Columns of floats for :func:`format_table`: an ``(n, k)`` float64 or float32 array."""
+    """Columns of floats for :func:`format_columns`: an ``(n, k)`` float64 or float32 array."""
     values: np.ndarray
 
 
 class Integers(NamedTuple):
-    """A column of integers for :func:`format_table`: an ``(n,)`` int64 array."""
+    """A column of integers for :func:`format_columns`: an ``(n,)`` int64 array."""
     values: np.ndarray
 
 
@@ -320,8 +320,11 @@ class Nanoseconds(NamedTuple):
     values: np.ndarray
 
 
-def format_table(columns: Sequence, separator: str = " ") -> bytes:
-    """Format columns into text lines, with polars when available (see :mod:`torchquat.io.fastpath`).
+_FORMATTERS = {Floats: format_floats, Integers: format_integers, Nanoseconds: format_nanoseconds}
+
+
+def format_columns(columns: Sequence, separator: str = " ") -> bytes:
+    """Format columns into text lines with numpy alone.
 
     Args:
         columns: :class:`Floats`, :class:`Integers` and :class:`Nanoseconds`, in column order.
@@ -331,22 +334,14 @@ def format_table(columns: Sequence, separator: str = " ") -> bytes:
         The encoded lines; every value reads back to the same float (or integer).
 
     Example:
-        >>> text = format_table([Integers(np.array([7])), Floats(np.array([[0.5, -2.0]]))])
+        >>> text = format_columns([Integers(np.array([7])), Floats(np.array([[0.5, -2.0]]))])
         >>> [float(v) for v in text.split()]
         [7.0, 0.5, -2.0]
     """
-    from .fastpath import write_table
-    text = write_table(columns, separator)
-    if text is not None:
-        return text
     fields = []
     for column in columns:
-        if isinstance(column, Floats):
-            fields.append(format_floats(column.values))
-        elif isinstance(column, Integers):
-            fields.append(format_integers(column.values))
-        elif isinstance(column, Nanoseconds):
-            fields.append(format_nanoseconds(column.values))
-        else:
-            raise TypeError(f"format_table: unknown column {type(column).__name__}")
+        formatter = _FORMATTERS.get(type(column))
+        if formatter is None:
+            raise TypeError(f"format_columns: unknown column {type(column).__name__}")
+        fields.append(formatter(column.values))
     return format_rows(fields, separator)

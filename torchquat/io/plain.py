@@ -20,12 +20,12 @@ from typing import BinaryIO, Iterator, List, Optional, Tuple
 import numpy as np
 import torch
 
-from ..registry import REPRESENTATIONS
 from .checks import Report, check_matrices, check_rot6d, normalize_quaternions
-from .formats import positions_of, time_column
-from .numtext import Floats, format_table
+from .numtext import Floats
 from .poses import PoseFileError, Poses
+from .representations import SHAPES, parse_token
 from .textparse import decimal_seconds_to_ns, iter_line_chunks, parse_table, read_header
+from .textwrite import format_table, positions_of, time_column
 
 __all__ = ["rotation_columns", "parse_columns", "read_csv", "read_npz", "read_npy", "CsvWriter", "NpzWriter",
            "NpyWriter", "representation_of_shape"]
@@ -89,7 +89,7 @@ def read_csv(path, stream: BinaryIO, chunk_lines: int, report: Report, **_) -> I
                             "on its first line or as the # line before the data", next_line)
     names = [n.strip() for n in header.decode("utf-8", "replace").strip().lstrip("#").strip().split(",")]
     has_time, has_position, representation, degrees = parse_columns(path, names, header_line)
-    shape = REPRESENTATIONS[representation.partition(":")[0]].shape
+    shape = SHAPES[representation.partition(":")[0]]
     start = int(has_time) + 3 * has_position
     for chunk in iter_line_chunks(stream, chunk_lines, first_line=next_line):
         table = parse_table(path, chunk, (len(names),), f"CSV columns {','.join(names)}", delimiter=b",",
@@ -161,8 +161,10 @@ def read_npz(path, stream: BinaryIO, chunk_lines: int, report: Report, **_) -> I
         if "rotation" not in data or "representation" not in data:
             raise PoseFileError(path, "an .npz pose file needs arrays 'rotation' and 'representation'")
         representation = str(data["representation"])
-        if representation.partition(":")[0] not in REPRESENTATIONS:
-            raise PoseFileError(path, f"unknown representation {representation!r}: one of {', '.join(REPRESENTATIONS)}")
+        try:
+            parse_token(representation, "array 'representation'")
+        except ValueError as err:  # (ConventionError too: a malformed Euler convention)
+            raise PoseFileError(path, str(err)) from None
         degrees = bool(data["degrees"]) if "degrees" in data else False
         rotations = _checked_array(path, _float_array(path, data["rotation"], "rotation"), representation, report)
         rows = len(rotations)

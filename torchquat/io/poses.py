@@ -7,7 +7,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..registry import convert, parse_representation
+from .. import convert
+from .representations import parse_token
 
 __all__ = ["Poses", "PoseFileError"]
 
@@ -55,10 +56,10 @@ class Poses:
     timestamps_ns: Optional[np.ndarray] = None
 
     def __post_init__(self):
-        rep, _ = parse_representation(self.representation, "Poses")
-        if tuple(self.rotations.shape[1:]) != rep.shape and not (
-                rep.name == "rot9d" and tuple(self.rotations.shape[1:]) == (3, 3)):
-            raise ValueError(f"Poses: expected rotations of shape (n, {', '.join(map(str, rep.shape))}) "
+        token = parse_token(self.representation, "Poses")
+        if tuple(self.rotations.shape[1:]) != token.shape and not (
+                token.name == "rot9d" and tuple(self.rotations.shape[1:]) == (3, 3)):
+            raise ValueError(f"Poses: expected rotations of shape (n, {', '.join(map(str, token.shape))}) "
                              f"for {self.representation!r}, got {tuple(self.rotations.shape)}")
         if self.timestamps_ns is not None and self.timestamps is None:
             self.timestamps = self.timestamps_ns / 1e9

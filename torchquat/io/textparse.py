@@ -20,7 +20,7 @@ from typing import BinaryIO, Iterator, List, NamedTuple, Optional, Sequence, Tup
 
 import numpy as np
 
-from . import fastpath
+from .fastpath import parse_block
 from .poses import PoseFileError
 
 __all__ = ["LineChunk", "Table", "iter_line_chunks", "parse_table", "decimal_seconds_to_ns"]
@@ -140,7 +140,7 @@ def parse_table(path, chunk: LineChunk, columns: Sequence[int], describe: str,
     block = chunk.block
     if _maybe_clean(block):  # the common case: every line is data, parsed as one block
         count = chunk.count
-        values = fastpath.parse_block(block, count, columns, delimiter)
+        values = parse_block(block, count, columns, delimiter)
         if values is None:
             values = _loadtxt(block, delimiter)
         if values is not None and values.shape[0] == count and values.shape[1] in columns:

@@ -4,7 +4,8 @@ from typing import Any, Optional
 
 from torch import Tensor
 
-from ..registry import convert, parse_conversion
+from .. import convert
+from .representations import parse_token
 
 __all__ = ["ConvertRotation"]
 
@@ -32,7 +33,7 @@ class ConvertRotation:
 
     def __init__(self, src: str, dst: str, key: str = "rotation", convention: Optional[str] = None,
                  degrees: bool = False):
-        parse_conversion(src, dst, "ConvertRotation", convention, degrees)  # fail early, in the main process
+        _check_conversion(src, dst, convention, degrees)  # fail early, in the main process
         self.src, self.dst, self.key, self.convention, self.degrees = src, dst, key, convention, degrees
 
     def __call__(self, sample: Any) -> Any:
@@ -53,3 +54,11 @@ class ConvertRotation:
         extra = f", convention={self.convention!r}" if self.convention else ""
         extra += ", degrees=True" if self.degrees else ""
         return f"ConvertRotation({self.src!r}, {self.dst!r}, key={self.key!r}{extra})"
+
+
+def _check_conversion(src: str, dst: str, convention: Optional[str], degrees: bool) -> None:
+    """Check both tokens, and refuse options neither side uses (they would be silently ignored)."""
+    euler = [parse_token(token, "ConvertRotation", convention).convention for token in (src, dst)]
+    if euler == [None, None] and (convention is not None or degrees):
+        given = f"convention={convention!r}" if convention is not None else f"degrees={degrees!r}"
+        raise ValueError(f"ConvertRotation: {given} only applies to Euler angles, but src={src!r} and dst={dst!r}")
