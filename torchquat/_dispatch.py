@@ -18,11 +18,12 @@ import os
 import types
 from typing import Callable, Dict, Sequence, Tuple
 
+import numpy
 import torch
 from torch import Tensor
 
 from ._backends import FLOATS, TENSORS
-from ._dual import jacobian
+from ._reverse import vjp_function
 
 __all__ = ["use_compiled_kernels", "compiled_kernels_enabled", "run"]
 
@@ -30,6 +31,8 @@ _enabled = os.environ.get("TORCHQUAT_COMPILE", "0").lower() in ("1", "true", "ye
 _compiled: Dict[Tuple, Callable] = {}
 _PLAIN = (Tensor, torch.nn.Parameter)  # (tensor subclasses may override what tolist reads)
 _FLOAT_FAILURES = (ZeroDivisionError, ValueError, OverflowError)
+_is_compiling, _is_tracing = torch.compiler.is_compiling, torch.jit.is_tracing
+_NUMPY_DTYPES = {torch.float32: numpy.float32, torch.float64: numpy.float64}
 
 
 def use_compiled_kernels(enabled: bool = True) -> None:
@@ -74,64 +77,82 @@ def _has_storage(x: Tensor) -> bool:
 
 
 class _OneRowGradient(torch.autograd.Function):
-    """A one-row result whose vector-Jacobian product is the Jacobian of :mod:`torchquat._dual`, in
-    Python floats. Differentiated again (``create_graph``), the backward runs the eager formula
-    under autograd instead, so higher derivatives are autograd's."""
+    """A one-row result whose backward is the formula's generated vector-Jacobian product
+    (:mod:`torchquat._reverse`), in Python floats. Where that is not finite, or the gradient is
+    differentiated again (``create_graph``), the backward runs the eager formula under autograd, so
+    higher derivatives are autograd's."""
 
     @staticmethod
-    def forward(ctx, out: Tensor, rows, formula, out_shape, static, *inputs):
-        ctx.rows, ctx.formula, ctx.out_shape, ctx.static = rows, formula, out_shape, static
+    def forward(ctx, out: Tensor, values, formula, out_shape, row_dims, static, *inputs):
+        ctx.values, ctx.formula, ctx.out_shape, ctx.row_dims, ctx.static = values, formula, out_shape, row_dims, static
         ctx.save_for_backward(*inputs)
         return out
 
     @staticmethod
     def backward(ctx, grad):
         inputs = ctx.saved_tensors
-        if torch.is_grad_enabled():
+        grads = None
+        if not torch.is_grad_enabled():
+            try:
+                flat = vjp_function(ctx.formula, len(ctx.values), ctx.static)(*ctx.values, *grad.reshape(-1).tolist())
+                if all(map(math.isfinite, flat)):
+                    grads, start = [], 0
+                    for x in inputs:
+                        n = x.numel()
+                        grads.append(torch.tensor(flat[start:start + n], dtype=x.dtype).view(x.shape)
+                                     if x.requires_grad else None)
+                        start += n
+            except _FLOAT_FAILURES:
+                pass
+        if grads is None:
             inputs = [x.view_as(x) for x in inputs]  # (each slot its own node: the same tensor may fill two)
             wanted = [x for x in inputs if x.requires_grad]
-            out = eager(ctx.formula, inputs, ctx.out_shape, ctx.static)
-            found = iter(torch.autograd.grad(out, wanted, grad, create_graph=True, allow_unused=True))
+            with torch.enable_grad():
+                out = eager(ctx.formula, inputs, ctx.out_shape, ctx.row_dims, ctx.static)
+            found = iter(torch.autograd.grad(out, wanted, grad, create_graph=torch.is_grad_enabled(),
+                                             allow_unused=True))
             grads = [next(found) if x.requires_grad else None for x in inputs]
-            return (None,) * 5 + tuple(grads)
-        g = grad.reshape(-1).tolist()
-        vjp = [sum(gi * row[j] for gi, row in zip(g, ctx.rows)) for j in range(len(ctx.rows[0]))]
-        grads, start = [], 0
-        for x in inputs:
-            n = x.shape[-1]
-            grads.append(torch.tensor(vjp[start:start + n], dtype=x.dtype).view(x.shape) if x.requires_grad else None)
-            start += n
-        return (None,) * 5 + tuple(grads)
+        return (None,) * 6 + tuple(grads)
 
 
-def _one_row(formula, inputs: Sequence[Tensor], out_shape, static):
+def _one_row(formula, inputs: Sequence[Tensor], out_shape, row_dims: int, static):
     """The formula on one row of Python floats, or ``None`` where that path does not apply."""
     values, grad = [], False
-    for x in inputs:
-        if type(x) not in _PLAIN or not x.is_cpu or x.numel() != x.shape[-1] or not _has_storage(x):
+    for x in inputs:  # (each attribute read of a tensor costs 0.05-0.3 us: few, cheapest first)
+        if type(x) not in _PLAIN or not x.is_cpu:
+            return None
+        shape = x.shape
+        if x.numel() != (shape[-1] if row_dims == 1 else 9) or not _has_storage(x):
             return None
         grad = grad or x.requires_grad
-        values += x.reshape(-1).tolist()
-    grad = grad and torch.is_grad_enabled()
-    try:
-        if grad:
-            out, rows = jacobian(formula, values, static)
+        if len(shape) != row_dims:
+            values += x.reshape(-1).tolist()
+        elif row_dims == 1:
+            values += x.tolist()
         else:
-            out = formula(FLOATS, *values, **static)
+            for row in x.tolist():
+                values += row
+    numpy_dtype = _NUMPY_DTYPES.get(inputs[0].dtype)
+    if numpy_dtype is None:
+        return None
+    try:
+        out = formula(FLOATS, *values, **static)
     except _FLOAT_FAILURES:
         return None
-    if grad and not all(math.isfinite(d) for row in rows for d in row):
-        return None  # (a singular point of the floats' derivatives: the tensor formula's safe substitutes)
-    batch = inputs[0].shape[:-1] if len(inputs) == 1 else torch.broadcast_shapes(*(x.shape[:-1] for x in inputs))
-    result = torch.tensor(out, dtype=inputs[0].dtype).view(batch + out_shape)
-    if grad:
-        return _OneRowGradient.apply(result, rows, formula, out_shape, static, *inputs)
+    batch = inputs[0].shape[:-row_dims]
+    for x in inputs[1:]:
+        if x.shape[:-row_dims] != batch:
+            batch = torch.broadcast_shapes(batch, x.shape[:-row_dims])
+    # (NumPy builds and shapes a small array faster than torch.tensor; each entry rounded once)
+    result = torch.from_numpy(numpy.array(out, dtype=numpy_dtype).reshape(batch + out_shape))
+    if grad and torch.is_grad_enabled():
+        return _OneRowGradient.apply(result, values, formula, out_shape, row_dims, static, *inputs)
     return result
 
 
-def eager(formula, inputs: Sequence[Tensor], out_shape, static) -> Tensor:
+def eager(formula, inputs: Sequence[Tensor], out_shape, row_dims: int, static) -> Tensor:
     """The formula on the batch's columns; also what :func:`use_compiled_kernels` compiles."""
-    columns = [c for x in inputs for c in x.unbind(-1)]
+    columns = [c for x in inputs for c in (x.flatten(-2) if row_dims == 2 else x).unbind(-1)]
     out = formula(TENSORS, *columns, **static)
     reference = next(o for o in out if isinstance(o, Tensor))
     out = [o if isinstance(o, Tensor) else torch.full_like(reference, o) for o in out]
@@ -142,12 +163,12 @@ def eager(formula, inputs: Sequence[Tensor], out_shape, static) -> Tensor:
     return torch.stack(out, -1).unflatten(-1, out_shape) if len(out_shape) > 1 else torch.stack(out, -1)
 
 
-def _kernel(formula, out_shape, static) -> Callable:
-    key = (formula, out_shape, tuple(sorted(static.items())))
+def _kernel(formula, out_shape, row_dims: int, static) -> Callable:
+    key = (formula, out_shape, row_dims, tuple(sorted(static.items())))
     compiled = _compiled.get(key)
     if compiled is None:
         def kernel(*inputs):
-            return eager(formula, inputs, out_shape, static)
+            return eager(formula, inputs, out_shape, row_dims, static)
         # a code object of its own: dynamo keeps compiled graphs, and its recompile limit, per code object
         code = kernel.__code__.replace(co_name=f"{formula.__name__}_{len(_compiled)}")
         kernel = types.FunctionType(code, kernel.__globals__, code.co_name, None, kernel.__closure__)
@@ -155,14 +176,15 @@ def _kernel(formula, out_shape, static) -> Callable:
     return compiled
 
 
-def run(formula, inputs: Sequence[Tensor], out_shape: Tuple[int, ...], **static) -> Tensor:
-    """Run ``formula`` on validated ``inputs`` (each ``(..., C)``, one dtype and device) on the path
-    that fits; ``out_shape`` is the output's trailing shape, ``static`` the formula's options."""
-    tracing = torch.compiler.is_compiling() or torch.jit.is_tracing()
-    if not tracing and inputs[0].numel() == inputs[0].shape[-1]:
-        out = _one_row(formula, inputs, out_shape, static)
+def run(formula, inputs: Sequence[Tensor], out_shape: Tuple[int, ...], row_dims: int = 1, **static) -> Tensor:
+    """Run ``formula`` on validated ``inputs`` (one dtype and device; each row ``row_dims`` trailing
+    dimensions: 1 for vectors, 2 for matrices) on the path that fits; ``out_shape`` is the output's
+    trailing shape, ``static`` the formula's options."""
+    tracing = _is_compiling() or _is_tracing()
+    if not tracing:
+        out = _one_row(formula, inputs, out_shape, row_dims, static)
         if out is not None:
             return out
     if _enabled and not tracing and all(_has_storage(x) for x in inputs):
-        return _kernel(formula, out_shape, static)(*inputs)
-    return eager(formula, inputs, out_shape, static)
+        return _kernel(formula, out_shape, row_dims, static)(*inputs)
+    return eager(formula, inputs, out_shape, row_dims, static)

@@ -183,17 +183,14 @@ def quat_distance(m, pw, px, py, pz, qw, qx, qy, qz):
     return (4.0 * m.atan2(safe_sqrt(m, m.where(nearer, minus, plus)), m.sqrt(m.where(nearer, plus, minus))),)
 
 
-def matrix_distance(m, *r):
-    """The angle of ``R1^T R2``: ``atan2(|a|, tr - 1)`` with ``a`` its skew part's axis
-    (``|a| = 2 sin theta``, ``tr - 1 = 2 cos theta``): accurate at 0 and pi, unlike ``acos``."""
-    p, q = r[:9], r[9:]
-
-    def entry(i, j):  # (R1^T R2)_ij = sum_k R1_ki R2_kj
-        return p[i] * q[j] + p[3 + i] * q[3 + j] + p[6 + i] * q[6 + j]
-
-    trace = entry(0, 0) + entry(1, 1) + entry(2, 2)
-    a0, a1, a2 = entry(2, 1) - entry(1, 2), entry(0, 2) - entry(2, 0), entry(1, 0) - entry(0, 1)
-    return (m.atan2(safe_sqrt(m, a0 * a0 + a1 * a1 + a2 * a2), trace - 1.0),)
+def matrix_distance(m, a00, a01, a02, a10, a11, a12, a20, a21, a22, b00, b01, b02, b10, b11, b12, b20, b21, b22):
+    """The angle of ``A^T B``: ``atan2(|u|, tr - 1)`` with ``u`` the axis of its skew part
+    (``|u| = 2 sin theta``, ``tr - 1 = 2 cos theta``): accurate at 0 and pi, unlike ``acos``."""
+    trace = (a00 * b00 + a10 * b10 + a20 * b20) + (a01 * b01 + a11 * b11 + a21 * b21) + (a02 * b02 + a12 * b12 + a22 * b22)
+    u0 = (a01 * b02 + a11 * b12 + a21 * b22) - (a02 * b01 + a12 * b11 + a22 * b21)
+    u1 = (a02 * b00 + a12 * b10 + a22 * b20) - (a00 * b02 + a10 * b12 + a20 * b22)
+    u2 = (a00 * b01 + a10 * b11 + a20 * b21) - (a01 * b00 + a11 * b10 + a21 * b20)
+    return (m.atan2(safe_sqrt(m, u0 * u0 + u1 * u1 + u2 * u2), trace - 1.0),)
 
 
 def slerp(m, pw, px, py, pz, qw, qx, qy, qz, t, tie: float):

@@ -85,4 +85,4 @@ def matrix_to_axis_angle(R: Tensor) -> Tensor:
         tensor([0., 0., 0.])
     """
     R, dtype = prepare(R, "matrix_to_axis_angle", "R", (3, 3))
-    return restore(run(F.matrix_to_axis_angle, (R.flatten(-2),), (3,)), dtype)
+    return restore(run(F.matrix_to_axis_angle, (R,), (3,), 2), dtype)

@@ -56,4 +56,4 @@ def matrix_geodesic_distance(R1: Tensor, R2: Tensor) -> Tensor:
         tensor(1.5708)
     """
     R1, R2, dtype = prepare_pair("matrix_geodesic_distance", ("R1", "R2"), R1, R2, (3, 3), (3, 3))
-    return restore(run(F.matrix_distance, (R1.flatten(-2), R2.flatten(-2)), ()), dtype)
+    return restore(run(F.matrix_distance, (R1, R2), (), 2), dtype)

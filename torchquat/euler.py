@@ -126,7 +126,7 @@ def matrix_to_euler(R: Tensor, convention: str, degrees: bool = False, eps: Opti
     degrees = check_degrees("matrix_to_euler", degrees)
     R, dtype = prepare(R, "matrix_to_euler", "R", (3, 3))
     eps = gimbal_threshold("matrix_to_euler", eps, R.dtype)
-    return restore(run(E.matrix_to_euler, (R.flatten(-2),), (3,), name=name, eps=eps, degrees=degrees), dtype)
+    return restore(run(E.matrix_to_euler, (R,), (3,), 2, name=name, eps=eps, degrees=degrees), dtype)
 
 
 def euler_gimbal_lock(q: Tensor, convention: str, eps: Optional[float] = None) -> Tensor:

@@ -55,4 +55,4 @@ def matrix_to_quat(R: Tensor) -> Tensor:
         tensor([1., 0., 0., 0.])
     """
     R, dtype = prepare(R, "matrix_to_quat", "R", (3, 3))
-    return restore(run(F.matrix_to_quat, (R.flatten(-2),), (4,)), dtype)
+    return restore(run(F.matrix_to_quat, (R,), (4,), 2), dtype)

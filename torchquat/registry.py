@@ -85,14 +85,14 @@ REPRESENTATIONS: Dict[str, Representation] = {r.name: r for r in (
 )}
 
 _HUB_TO_HUB = {("quat", "matrix"): lambda q: run(F.quat_to_matrix, (q,), (3, 3)),
-               ("matrix", "quat"): lambda R: run(F.matrix_to_quat, (R.flatten(-2),), (4,))}
+               ("matrix", "quat"): lambda R: run(F.matrix_to_quat, (R,), (4,), 2)}
 _QUATERNIONS = ("quat", "quat_xyzw")
 # Representations on the quaternion's side with a formula of their own to and from the matrix, which
 # convert takes in place of the way through both hubs (one formula, the named function's numbers)
 _TO_MATRIX = {"euler": lambda x, o: run(E.euler_to_matrix, (x,), (3, 3), **_euler_options(o)),
               "axis_angle": lambda x, o: run(F.axis_angle_to_matrix, (x,), (3, 3))}
-_FROM_MATRIX = {"euler": lambda R, o: run(E.matrix_to_euler, (R.flatten(-2),), (3,), **_options(o, R)),
-                "axis_angle": lambda R, o: run(F.matrix_to_axis_angle, (R.flatten(-2),), (3,))}
+_FROM_MATRIX = {"euler": lambda R, o: run(E.matrix_to_euler, (R,), (3,), 2, **_options(o, R)),
+                "axis_angle": lambda R, o: run(F.matrix_to_axis_angle, (R,), (3,), 2)}
 
 
 def parse_conversion(src: str, dst: str, fn: str, convention=None, degrees: bool = False):

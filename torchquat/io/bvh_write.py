@@ -146,7 +146,7 @@ def write_bvh(path, motion: Motion, order: Optional[str] = None, dtype=np.float6
         >>> torch.allclose(read_bvh(path).rotations, q.double())
         True
     """
-    from . import atomic_output  # (the package's, wherever the streaming code lives)
+    from .files import atomic_output
     text = bvh_text(motion, order, dtype)
     with atomic_output(path) as stream:
         stream.write(text)

@@ -141,7 +141,7 @@ def write_motion(path, motion: Motion, representation: Optional[str] = None, deg
     Returns:
         The number of frames written.
     """
-    from . import atomic_output
+    from .files import atomic_output
     from .bvh_write import write_bvh
     suffix = Path(path).suffix.lower()
     if suffix == ".bvh":

@@ -63,7 +63,7 @@ class GeodesicLoss(nn.Module):
     def _loss(self, input: Tensor, target: Tensor) -> Tensor:
         if self.representation == "matrix":
             a, b, dtype = _prepare_pair("GeodesicLoss", input, target, (3, 3))
-            loss = run(F.matrix_distance, (a.flatten(-2), b.flatten(-2)), ())
+            loss = run(F.matrix_distance, (a, b), (), 2)
         else:
             a, b, dtype = _prepare_pair("GeodesicLoss", input, target, (4,))
             loss = run(F.quat_distance, (a, b), ())
