@@ -31,6 +31,9 @@ _enabled = os.environ.get("TORCHQUAT_COMPILE", "0").lower() in ("1", "true", "ye
 _compiled: Dict[Tuple, Callable] = {}
 _PLAIN = (Tensor, torch.nn.Parameter)  # (tensor subclasses may override what tolist reads)
 _FLOAT_FAILURES = (ZeroDivisionError, ValueError, OverflowError)
+# Rows per block of a large eager CPU batch: 64 KB a float32 column, so that the few columns a
+# formula step reads and writes stay in a core's cache (any CPU's L2 holds several).
+BLOCK_ROWS = 16_384
 _is_compiling, _is_tracing = torch.compiler.is_compiling, torch.jit.is_tracing
 _NUMPY_DTYPES = {torch.float32: numpy.float32, torch.float64: numpy.float64}
 
@@ -150,6 +153,27 @@ def _one_row(formula, inputs: Sequence[Tensor], out_shape, row_dims: int, static
     return result
 
 
+def blocked(formula, inputs: Sequence[Tensor], out_shape, row_dims: int, static) -> Tensor:
+    """:func:`eager` block by block, for large CPU batches of one batch shape: each block's columns
+    are made contiguous and stay in cache across the formula's 20-50 passes, where a whole batch's
+    columns go through memory on every pass."""
+    batch = inputs[0].shape[:-row_dims]
+    rows = [x.reshape(-1, 9 if row_dims == 2 else x.shape[-1]) for x in inputs]
+    n, width = rows[0].shape[0], math.prod(out_shape)
+    record = torch.is_grad_enabled() and any(x.requires_grad for x in inputs)
+    out = None if record else inputs[0].new_empty((n, width))
+    pieces = []
+    for start in range(0, n, BLOCK_ROWS):
+        columns = [c for x in rows for c in x[start:start + BLOCK_ROWS].t().contiguous().unbind(0)]
+        values = formula(TENSORS, *columns, **static)
+        if record:
+            pieces.append(torch.stack(values, -1))
+        else:
+            torch.stack(values, -1, out=out[start:start + BLOCK_ROWS])
+    out = torch.cat(pieces) if record else out
+    return out.view(batch + out_shape) if out_shape else out.view(batch)
+
+
 def eager(formula, inputs: Sequence[Tensor], out_shape, row_dims: int, static) -> Tensor:
     """The formula on the batch's columns; also what :func:`use_compiled_kernels` compiles."""
     columns = [c for x in inputs for c in (x.flatten(-2) if row_dims == 2 else x).unbind(-1)]
@@ -185,6 +209,10 @@ def run(formula, inputs: Sequence[Tensor], out_shape: Tuple[int, ...], row_dims:
         out = _one_row(formula, inputs, out_shape, row_dims, static)
         if out is not None:
             return out
-    if _enabled and not tracing and all(_has_storage(x) for x in inputs):
-        return _kernel(formula, out_shape, row_dims, static)(*inputs)
+    if not tracing and all(_has_storage(x) for x in inputs):
+        if _enabled:
+            return _kernel(formula, out_shape, row_dims, static)(*inputs)
+        batch = inputs[0].shape[:-row_dims]
+        if inputs[0].is_cpu and math.prod(batch) >= 2 * BLOCK_ROWS and all(x.shape[:-row_dims] == batch for x in inputs):
+            return blocked(formula, inputs, out_shape, row_dims, static)
     return eager(formula, inputs, out_shape, row_dims, static)
