@@ -17,7 +17,6 @@ import math
 from ._formulas import OUTER, safe_sqrt, standardize
 from .conventions import EULER_CONVENTIONS
 
-_PRODUCTS = ("aa", "bb", "cc", "dd", "ab", "cd", "ac", "bd", "bc", "ad")
 
 
 @functools.lru_cache(maxsize=None)
@@ -38,42 +37,55 @@ def permutation(name: str):
 
 
 def _combine(coefficients, values):
+    """``sum(c * values[i])`` over ``{i: c}``, with no product for a coefficient of +-1."""
     total = None
     for index, coefficient in coefficients.items():
         if coefficient == 0:
             continue
-        term = values[index] if coefficient == 1 else (-values[index] if coefficient == -1 else coefficient * values[index])
-        total = term if total is None else total + term
-    return total
+        term = values[index] if abs(coefficient) == 1 else float(abs(coefficient)) * values[index]
+        if total is None:
+            total = term if coefficient > 0 else -term
+        else:
+            total = total + term if coefficient > 0 else total - term
+    return 0.0 if total is None else total
+
+
+# The forms the angles read, as coefficients over products of (a, b, c, d): |ab|^2, |cd|^2, the pair
+# of t1 = atan2(b, a) - atan2(d, c), and the double angles 2 atan2(b, a) and 2 atan2(d, c).
+_FORMS = {"ab2": {"aa": 1, "bb": 1}, "cd2": {"cc": 1, "dd": 1}, "y1": {"bc": 1, "ad": -1}, "x1": {"ac": 1, "bd": 1},
+          "day": {"ab": 2}, "dax": {"aa": 1, "bb": -1}, "dcy": {"cd": 2}, "dcx": {"cc": 1, "dd": -1}}
 
 
 def forms_of_quat(name: str, q):
-    """The ten products of ``(a, b, c, d)`` from a quaternion's components (any norm)."""
-    (a, b, c, d) = (_combine(coefficients, q) for coefficients in permutation(name)[0])
-    v = {"a": a, "b": b, "c": c, "d": d}
-    return {p: v[p[0]] * v[p[1]] for p in _PRODUCTS}
+    """The forms from a quaternion's components (any norm: the angles are ratios)."""
+    a, b, c, d = (_combine(coefficients, q) for coefficients in permutation(name)[0])
+    aa, bb, cc, dd = a * a, b * b, c * c, d * d
+    return {"ab2": aa + bb, "cd2": cc + dd, "y1": b * c - a * d, "x1": a * c + b * d,
+            "day": 2.0 * (a * b), "dax": aa - bb, "dcy": 2.0 * (c * d), "dcx": cc - dd}
 
 
 @functools.lru_cache(maxsize=None)
 def _matrix_form_terms(name: str):
-    """Each product of ``(a, b, c, d)`` as a linear function of R's entries (index -1: the constant),
-    from ``q_u q_v = (4 q q^T)_uv / 4`` (the common factor 4 dropped: the angles are ratios)."""
+    """Each form as a linear function of R's entries (index -1: the constant), from
+    ``q_u q_v = (4 q q^T)_uv / 4`` (the common factor 4 dropped: the angles are ratios). A few
+    entries each, where the products they sum would take a dozen."""
     abcd = dict(zip("abcd", permutation(name)[0]))
     terms = {}
-    for p in _PRODUCTS:
+    for form, products in _FORMS.items():
         total = {}
-        for u, cu in abcd[p[0]].items():
-            for v, cv in abcd[p[1]].items():
-                for sign, index in OUTER[(min(u, v), max(u, v))]:
-                    total[index] = total.get(index, 0) + cu * cv * sign
-        terms[p] = {index: c for index, c in total.items() if c != 0}
+        for p, weight in products.items():
+            for u, cu in abcd[p[0]].items():
+                for v, cv in abcd[p[1]].items():
+                    for sign, index in OUTER[(min(u, v), max(u, v))]:
+                        total[index] = total.get(index, 0) + weight * cu * cv * sign
+        terms[form] = {index: c for index, c in total.items() if c != 0}
     return terms
 
 
 def forms_of_matrix(name: str, r):
     values = dict(enumerate(r))
     values[-1] = 1.0
-    return {p: _combine(coefficients, values) for p, coefficients in _matrix_form_terms(name).items()}
+    return {form: _combine(coefficients, values) for form, coefficients in _matrix_form_terms(name).items()}
 
 
 def angles(m, f, name: str, eps: float, degrees: bool):
@@ -92,8 +104,8 @@ def angles(m, f, name: str, eps: float, degrees: bool):
     z = ab2 - cd2
     middle = m.atan2(h2, z) if conv.symmetric else m.atan2(-z, h2)
     t1 = m.atan2(m.where(lock, 0.0, y1), m.where(lock, 1.0, x1))
-    double_ab = m.atan2(m.where(nearpi, 0.0, 2.0 * f["ab"]), m.where(nearpi, 1.0, f["aa"] - f["bb"]))
-    double_cd = m.atan2(m.where(near0, 0.0, 2.0 * f["cd"]), m.where(near0, 1.0, f["cc"] - f["dd"]))
+    double_ab = m.atan2(m.where(nearpi, 0.0, f["day"]), m.where(nearpi, 1.0, f["dax"]))
+    double_cd = m.atan2(m.where(near0, 0.0, f["dcy"]), m.where(near0, 1.0, f["dcx"]))
     t3 = m.where(near0, double_ab - t1, double_cd + t1)
     t3 = m.where(t3 > math.pi, t3 - 2.0 * math.pi, m.where(t3 < -math.pi, t3 + 2.0 * math.pi, t3))
     at_lock = m.where(near0, double_ab, double_cd if conv.intrinsic else -double_cd)
@@ -109,8 +121,7 @@ def _lock_test(m, f, eps: float):
     """``|ab|^2``, ``|cd|^2``, ``t1``'s pair, ``2 h`` and the lock mask. ``h = |ab| |cd|`` is the norm
     of ``t1``'s pair: off-diagonal forms, small near the lock with small errors (from R, the
     product ``|ab|^2 |cd|^2`` carries the absolute rounding of ``1 + r00 + ...``: sqrt(eps) in h)."""
-    ab2, cd2 = f["aa"] + f["bb"], f["cc"] + f["dd"]
-    y1, x1 = f["bc"] - f["ad"], f["ac"] + f["bd"]
+    ab2, cd2, y1, x1 = f["ab2"], f["cd2"], f["y1"], f["x1"]
     h2 = safe_sqrt(m, y1 * y1 + x1 * x1) * 2.0
     return ab2, cd2, y1, x1, h2, h2 <= math.sin(eps) * (ab2 + cd2)
 

@@ -12,6 +12,8 @@ formula stays the one source. ``where`` passes the adjoint to the side it select
 import math
 from typing import Callable, Dict, List, Tuple
 
+import numpy
+
 from ._backends import _float_sign
 
 _CACHE: Dict[Tuple, Callable] = {}
@@ -79,9 +81,9 @@ _FLOAT_OPS = {"sqrt": math.sqrt, "sin": math.sin, "cos": math.cos, "atan2": math
 # how each operation is written, from its arguments' names
 _FORWARD = {
     "add": "{0} + {1}", "sub": "{0} - {1}", "mul": "{0} * {1}", "div": "{0} / {1}", "neg": "-{0}",
-    "lt": "{0} < {1}", "le": "{0} <= {1}", "and": "{0} and {1}", "or": "{0} or {1}",
+    "lt": "{0} < {1}", "le": "{0} <= {1}", "and": "{0} & {1}", "or": "{0} | {1}",
     "sqrt": "sqrt({0})", "sin": "sin({0})", "cos": "cos({0})", "atan2": "atan2({0}, {1})", "fmod": "fmod({0}, {1})",
-    "abs": "abs({0})", "sign": "sign({0})", "where": "{1} if {0} else {2}",
+    "abs": "abs({0})", "sign": "sign({0})", "where": "where({0}, {1}, {2})",
 }
 # each argument's adjoint contribution, from the node's adjoint (a), value (v) and arguments
 _BACKWARD = {
@@ -90,7 +92,7 @@ _BACKWARD = {
     "sqrt": ("{a} * 0.5 / {v}",), "sin": ("{a} * cos({0})",), "cos": ("-{a} * sin({0})",),
     "atan2": ("{a} * {1} / ({0} * {0} + {1} * {1})", "-{a} * {0} / ({0} * {0} + {1} * {1})"),
     "fmod": ("{a}", None), "abs": ("{a} * sign({0})",),
-    "where": (None, "({a} if {0} else 0.0)", "(0.0 if {0} else {a})"),
+    "where": (None, "where({0}, {a}, 0.0)", "where({0}, 0.0, {a})"),
 }
 
 
@@ -98,7 +100,7 @@ def _name(x) -> str:
     return f"v{x.index}" if isinstance(x, Node) else repr(float(x) if not isinstance(x, bool) else x)
 
 
-def _generate(formula, n_inputs: int, static: dict) -> Callable:
+def _generate(formula, n_inputs: int, static: dict, arrays: bool) -> Callable:
     trace: List[Node] = []
     inputs = [Node(trace, "input") for _ in range(n_inputs)]
     outputs = formula(_Trace(), *inputs, **static)
@@ -119,28 +121,41 @@ def _generate(formula, n_inputs: int, static: dict) -> Callable:
     lines = [f"def vjp({', '.join(names + grads)}):"]
     for node in trace[n_inputs:]:
         lines.append(f"    v{node.index} = " + _FORWARD[node.op].format(*map(_name, node.args)))
-    lines += [f"    a{i} = 0.0" for i in range(len(trace)) if needed[i]]
+    started = set()  # adjoints assigned so far: the first contribution is assigned, later ones added
+
+    def contribute(index: int, term: str):
+        lines.append(f"    a{index} = a{index} + {term}" if index in started else f"    a{index} = {term}")
+        started.add(index)
+
     for k, o in enumerate(outputs):
         if isinstance(o, Node) and needed[o.index]:
-            lines.append(f"    a{o.index} += g{k}")
+            contribute(o.index, f"g{k}")
     for node in reversed(trace):
-        if not needed[node.index] or node.op not in _BACKWARD:
+        if not needed[node.index] or node.op not in _BACKWARD or node.index not in started:
             continue
-        for arg, rule in zip(node.args, _BACKWARD[node.op]):
+        rules = _BACKWARD[node.op]
+        if node.op == "where" and arrays and isinstance(node.args[0], Node):  # (NumPy's where costs 5 products)
+            rules = (None, "{a} * {0}", "{a} * ~{0}")
+        for arg, rule in zip(node.args, rules):
             if rule is not None and isinstance(arg, Node) and needed[arg.index]:
-                term = rule.format(*map(_name, node.args), a=f"a{node.index}", v=f"v{node.index}")
-                lines.append(f"    a{arg.index} += {term}")
-    lines.append("    return [" + ", ".join(f"a{i}" if needed[i] else "0.0" for i in range(n_inputs)) + "]")
-    scope = {"sqrt": math.sqrt, "sin": math.sin, "cos": math.cos, "atan2": math.atan2, "fmod": math.fmod,
-             "sign": _float_sign, "inf": math.inf, "nan": math.nan}
+                contribute(arg.index, rule.format(*map(_name, node.args), a=f"a{node.index}", v=f"v{node.index}"))
+    lines.append("    return [" + ", ".join(f"a{i}" if i in started else "0.0" for i in range(n_inputs)) + "]")
+    scope = dict(ARRAY_FUNCTIONS if arrays else FLOAT_FUNCTIONS, inf=math.inf, nan=math.nan)
     exec(compile("\n".join(lines), f"<torchquat vjp of {formula.__name__}>", "exec"), scope)
     return scope["vjp"]
 
 
-def vjp_function(formula, n_inputs: int, static: dict) -> Callable:
-    """``vjp(*inputs, *output_gradients) -> input gradients`` of ``formula``, in floats (cached)."""
-    key = (formula, n_inputs, tuple(sorted(static.items())))
+FLOAT_FUNCTIONS = {"sqrt": math.sqrt, "sin": math.sin, "cos": math.cos, "atan2": math.atan2, "fmod": math.fmod,
+                   "abs": abs, "sign": _float_sign, "where": _FLOAT_OPS["where"]}
+ARRAY_FUNCTIONS = {"sqrt": numpy.sqrt, "sin": numpy.sin, "cos": numpy.cos, "atan2": numpy.arctan2,
+                   "fmod": numpy.fmod, "abs": numpy.abs, "sign": numpy.sign, "where": numpy.where}
+
+
+def vjp_function(formula, n_inputs: int, static: dict, arrays: bool = False) -> Callable:
+    """``vjp(*inputs, *output_gradients) -> input gradients`` of ``formula``, in floats or, with
+    ``arrays``, in NumPy columns (generated once per formula and options)."""
+    key = (formula, n_inputs, tuple(sorted(static.items())), arrays)
     fn = _CACHE.get(key)
     if fn is None:
-        fn = _CACHE[key] = _generate(formula, n_inputs, static)
+        fn = _CACHE[key] = _generate(formula, n_inputs, static, arrays)
     return fn
