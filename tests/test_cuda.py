@@ -11,7 +11,6 @@ import pytest
 import torch
 
 import torchquat as tq
-import torchquat._math as tqmath
 from function_table import ALL, assert_paths_agree, compiled_against_eager
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
@@ -22,8 +21,7 @@ SYNCS_BY_DESIGN = {"rot9d_to_matrix"}
 
 
 def without_host_sync(call, name=""):
-    """``call()``, raising if it synchronizes with the host. A first call runs unchecked: it
-    uploads the constant tables (cached per dtype and device), a one-off host-to-device copy."""
+    """``call()``, raising if it synchronizes with the host (after a first call, unchecked)."""
     call()
     if name in SYNCS_BY_DESIGN:
         return call()
@@ -35,17 +33,9 @@ def without_host_sync(call, name=""):
         torch.cuda.set_sync_debug_mode("default")
 
 
-def force_large_path(monkeypatch):
-    monkeypatch.setattr(tqmath, "SMALL_BATCH_ROWS", 0)
-    monkeypatch.setattr(tqmath, "GPU_SMALL_BATCH_ROWS", 0)
-
-
-@pytest.mark.parametrize("large", [False, True], ids=["small path", "large path"])
 @pytest.mark.parametrize("name", sorted(ALL))
-def test_cuda_matches_cpu_without_a_host_sync(name, large, monkeypatch):
+def test_cuda_matches_cpu_without_a_host_sync(name):
     fn, generic, singular = ALL[name]
-    if large:
-        force_large_path(monkeypatch)
     for make in (generic, singular):
         cpu = tuple(x.clone().requires_grad_() for x in make())
         ref = fn(*cpu)
@@ -60,7 +50,6 @@ def test_cuda_matches_cpu_without_a_host_sync(name, large, monkeypatch):
         with torch.no_grad():
             plain = without_host_sync(lambda: fn(*(x.detach() for x in gpu)), name)
         assert out.device == plain.device == gpu[0].device
-        # (bit for bit on the CPU; cuBLAS may sum the closed forms' wider matmuls in another order)
         assert torch.allclose(plain, out.detach(), atol=1e-14, rtol=0, equal_nan=True)
         assert all(g.device == gpu[0].device for g in grads)
         assert_paths_agree(name, make is singular, out.detach().cpu(), ref.detach(), [g.cpu() for g in grads],
@@ -70,19 +59,15 @@ def test_cuda_matches_cpu_without_a_host_sync(name, large, monkeypatch):
 @pytest.mark.parametrize("name", ["quat_to_euler[ZYX]", "matrix_to_euler[zxz]", "euler_to_quat[XYZ]",
                                   "euler_to_matrix[ZYZ]", "matrix_to_quat", "axis_angle_to_quat",
                                   "quat_to_axis_angle", "rot6d_to_matrix", "quat_geodesic_distance"])
-def test_cuda_closed_form_backward_has_exact_second_derivatives(name):
-    # the small-batch closed forms differentiate their plain forward again for double backward
+def test_cuda_second_derivatives_are_exact(name):
     # (the tolerance for nondeterminism: CUDA's backward of a broadcast sums with atomic adds)
     fn, generic, singular = ALL[name]
     inputs = tuple(x[:3].cuda().requires_grad_() for x in generic())
     assert torch.autograd.gradgradcheck(lambda *xs: fn(*xs), inputs, nondet_tol=1e-12)
 
 
-@pytest.mark.parametrize("n, large", [(7, False), (20_000, False), (20_000, True)],
-                         ids=["small path", "tables at 20,000 rows", "large path"])
-def test_float32_on_cuda_matches_float64_on_cpu(n, large, monkeypatch):
-    if large:
-        force_large_path(monkeypatch)
+@pytest.mark.parametrize("n", [1, 7, 20_000])
+def test_float32_on_cuda_matches_float64_on_cpu(n):
     g = torch.Generator().manual_seed(3)
     q = tq.random_quat(n, generator=g, dtype=torch.float64)
     R = tq.quat_to_matrix(q)

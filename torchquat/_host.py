@@ -54,7 +54,7 @@ class _HostGradient(torch.autograd.Function):
         inputs = ctx.saved_tensors
         grads = None
         if not torch.is_grad_enabled():
-            arrays = isinstance(ctx.values[0], numpy.ndarray)
+            arrays = isinstance(ctx.values[0], numpy.ndarray)  # (NumPy rows, or floats for one row)
             grads = (_column_gradients if arrays else _row_gradients)(ctx, grad)
             if grads is not None:
                 grads = [g.view(x.shape) if x.requires_grad else None for g, x in zip(grads, inputs)]
@@ -87,24 +87,23 @@ def _row_gradients(ctx, grad: Tensor):
 
 
 def _column_gradients(ctx, grad: Tensor):
-    vjp = vjp_function(ctx.formula, len(ctx.values), ctx.static, arrays=True)
-    rows = max(c.shape[0] for c in ctx.values)
+    n_values = sum(ctx.widths)
+    vjp = vjp_function(ctx.formula, n_values, ctx.static, arrays=True)
+    rows = max(a.shape[0] for a in ctx.values)
     g = grad.detach().reshape(rows, -1).numpy()
-    dtype = g.dtype
-    out = numpy.empty((rows, len(ctx.values)), dtype=dtype)
+    out = numpy.empty((rows, n_values), dtype=g.dtype)
     with numpy.errstate(all="ignore"):
-        for start in range(0, rows, BLOCK_ROWS):
-            stop = min(start + BLOCK_ROWS, rows)
-            values = [c if c.shape[0] == 1 else c[start:stop] for c in ctx.values]
-            for k, column in enumerate(vjp(*values, *(g[start:stop, j] for j in range(g.shape[1])))):
+        for start, stop, block in _blocks(ctx.values, rows):
+            for k, column in enumerate(vjp(*block, *g[start:stop].T.copy())):
                 out[start:stop, k] = column
     if not numpy.isfinite(out).all():
         return None
-    grads = []
-    for part, values in zip(_split(range(len(ctx.values)), ctx.widths), _split(ctx.values, ctx.widths)):
-        block = out[:, part.start:part.stop]
-        if values[0].shape[0] == 1 and rows > 1:  # (one row broadcast over the batch: its gradient sums)
-            block = block.sum(0, keepdims=True, dtype=dtype)
+    grads, first = [], 0
+    for a, width in zip(ctx.values, ctx.widths):
+        block = out[:, first:first + width]
+        first += width
+        if a.shape[0] == 1 and rows > 1:  # (one row broadcast over the batch: its gradient sums)
+            block = block.sum(0, keepdims=True, dtype=g.dtype)
         grads.append(torch.from_numpy(numpy.ascontiguousarray(block)))
     return grads
 
@@ -152,6 +151,15 @@ def one_row(formula, inputs: Sequence[Tensor], out_shape, row_dims: int, static,
     return result
 
 
+def _blocks(arrays, rows: int):
+    """``(start, stop, columns)`` for each block of rows: each input's columns in that block,
+    contiguous (NumPy takes up to 3x as long a step on strided ones) and in cache; a one-row
+    input's own columns in every block (broadcast)."""
+    for start in range(0, rows, BLOCK_ROWS):
+        stop = min(start + BLOCK_ROWS, rows)
+        yield start, stop, [c for a in arrays for c in (a if a.shape[0] == 1 else a[start:stop]).T.copy()]
+
+
 def columns(formula, inputs: Sequence[Tensor], out_shape, row_dims: int, static, fallback) -> Optional[Tensor]:
     """The formula on NumPy columns of a CPU batch, block by block, or ``None`` where this path does
     not apply. Each input has the batch shape, or is one row (broadcast)."""
@@ -166,16 +174,22 @@ def columns(formula, inputs: Sequence[Tensor], out_shape, row_dims: int, static,
     if batch is None:
         return None
     rows = math.prod(batch)
-    # each input's columns, contiguous (a strided column costs NumPy up to 3x a step)
-    values = [c for x, width in zip(inputs, widths) for c in x.detach().reshape(-1, width).numpy().T.copy()]
+    arrays = [x.detach().reshape(-1, width).numpy() for x, width in zip(inputs, widths)]
     out = numpy.empty((rows, math.prod(out_shape)), dtype=_NUMPY_DTYPES[inputs[0].dtype])
     with numpy.errstate(all="ignore"):
-        for start in range(0, rows, BLOCK_ROWS):
-            stop = min(start + BLOCK_ROWS, rows)
-            block = [c if c.shape[0] == 1 else c[start:stop] for c in values]
+        for start, stop, block in _blocks(arrays, rows):
             for k, column in enumerate(formula(ARRAYS, *block, **static)):
                 out[start:stop, k] = column
     result = torch.from_numpy(out).view(batch + out_shape)
     if torch.is_grad_enabled() and any(x.requires_grad for x in inputs):
-        return _HostGradient.apply(result, values, widths, formula, static, fallback, *inputs)
+        return _HostGradient.apply(result, arrays, widths, formula, static, fallback, *inputs)
     return result
+
+
+def _blocks(arrays, rows: int):
+    """``(start, stop, columns)`` for each block of rows: each input's columns in that block,
+    contiguous (NumPy takes up to 3x as long a step on strided ones) and in cache; a one-row
+    input's own columns in every block (broadcast)."""
+    for start in range(0, rows, BLOCK_ROWS):
+        stop = min(start + BLOCK_ROWS, rows)
+        yield start, stop, [c for a in arrays for c in (a if a.shape[0] == 1 else a[start:stop]).T.copy()]

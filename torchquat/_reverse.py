@@ -10,6 +10,7 @@ formula stays the one source. ``where`` passes the adjoint to the side it select
 """
 
 import math
+import re
 from typing import Callable, Dict, List, Tuple
 
 import numpy
@@ -118,9 +119,7 @@ def _generate(formula, n_inputs: int, static: dict, arrays: bool) -> Callable:
                     needed[arg.index] = True
     names = [f"v{i}" for i in range(n_inputs)]
     grads = [f"g{k}" for k in range(len(outputs))]
-    lines = [f"def vjp({', '.join(names + grads)}):"]
-    for node in trace[n_inputs:]:
-        lines.append(f"    v{node.index} = " + _FORWARD[node.op].format(*map(_name, node.args)))
+    lines = []
     started = set()  # adjoints assigned so far: the first contribution is assigned, later ones added
 
     def contribute(index: int, term: str):
@@ -140,6 +139,18 @@ def _generate(formula, n_inputs: int, static: dict, arrays: bool) -> Callable:
             if rule is not None and isinstance(arg, Node) and needed[arg.index]:
                 contribute(arg.index, rule.format(*map(_name, node.args), a=f"a{node.index}", v=f"v{node.index}"))
     lines.append("    return [" + ", ".join(f"a{i}" if i in started else "0.0" for i in range(n_inputs)) + "]")
+    # the forward steps the adjoints read, and the steps those read (the rest is never computed)
+    used = [False] * len(trace)
+    for index in map(int, re.findall(r"\bv(\d+)\b", "\n".join(lines))):
+        used[index] = True
+    for node in reversed(trace):
+        if used[node.index]:
+            for arg in node.args:
+                if isinstance(arg, Node):
+                    used[arg.index] = True
+    forward = [f"    v{node.index} = " + _FORWARD[node.op].format(*map(_name, node.args))
+               for node in trace[n_inputs:] if used[node.index]]
+    lines = [f"def vjp({', '.join(names + grads)}):"] + forward + lines
     scope = dict(ARRAY_FUNCTIONS if arrays else FLOAT_FUNCTIONS, inf=math.inf, nan=math.nan)
     exec(compile("\n".join(lines), f"<torchquat vjp of {formula.__name__}>", "exec"), scope)
     return scope["vjp"]
