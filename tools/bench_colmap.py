@@ -11,19 +11,6 @@ and peak memory (ru_maxrss) above the memory after imports:
 for each number of images in ``--sizes``: torchquat's peak memory stays flat as the count grows
 (it holds a few chunks of 10,000 images), pycolmap's grows with it (it holds the whole model).
 
-Measured (2 cores, 50 points per image, session of issue 43):
-
-======  =========  =======  =======
-images  reader     seconds  peak MB
-======  =========  =======  =======
- 30000  pycolmap      0.20     48.6
- 30000  torchquat     0.16     62.7
-100000  pycolmap      1.28    178.7
-100000  torchquat     0.38     68.6
-300000  pycolmap      8.72    548.1
-300000  torchquat     0.88     68.9
-======  =========  =======  =======
-
 Not a test: it takes tens of seconds and a few hundred MB of disk.
 """
 
