@@ -39,6 +39,14 @@ _CONVERT_EPILOG = """formats (from the extension, or --from / --to):
   bvh    .bvh   motion capture (HIERARCHY + MOTION): in, and out from any motion (--to bvh)
   amass  .npz   AMASS poses (T, 3J) axis-angle, trans, mocap_frame[_]rate; a motion in .npz/.npy
                 holds (T, J, k) rotations (--to rot6d ...) with joint names, parents, offsets
+  colmap images.txt, images.bin  COLMAP model: world -> camera, QW QX QY QZ TX TY TZ, OpenCV axes
+  nerf   transforms.json  frames[].transform_matrix: camera -> world, OpenGL axes (other fields kept)
+  bop    scene_gt.json    cam_R_m2c, cam_t_m2c (mm): model -> camera, OpenCV axes
+
+camera conventions: between colmap, nerf and bop each pose is inverted and its camera axes turned
+as needed (colmap -> nerf: c2w = inv(w2c) @ diag(1, -1, -1, 1)); to tum, kitti, euroc and plain
+files a pose becomes the camera's pose in the world; stderr says what was done. The world frame is
+never moved, recentred or rescaled; plain .csv/.npz outputs keep image_id, name ... as columns.
 
 checks: a malformed line stops the conversion (file:line on stderr, exit 2, OUT untouched);
 quaternions with |norm - 1| < 1e-3 are normalised, matrices with 1e-5 <= max|R^T R - I| < 1e-2 are
@@ -53,6 +61,10 @@ examples:
   torchquat convert trajectory.tum rot6d.npz --to rot6d --dtype float32
   torchquat convert walk.bvh walk.npz --to rot6d
   torchquat convert walk.npz walk.bvh
+  torchquat convert sequences/ out/ --to tum --workers 4
+  torchquat convert 'shards/*.txt' out/ --to rot6d --ext .parquet --scheduler tcp://10.0.0.1:8786
+  torchquat convert sparse/0/images.bin transforms.json
+  torchquat convert sparse/0/images.bin cameras.tum
 """
 
 
@@ -73,15 +85,17 @@ class ArgumentParser(argparse.ArgumentParser):
 
 def add_convert_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``torchquat convert``."""
-    parser.add_argument("input", metavar="IN", help="pose file to read")
+    parser.add_argument("input", metavar="IN", nargs="+", help="pose file to read; several files, a folder or a glob "
+                        "pattern convert into the folder OUT, in parallel (see 'many files' below)")
     parser.add_argument("output", metavar="OUT", help="file to write (atomically: untouched on any error)")
     parser.add_argument("--to", metavar="TARGET",
-                        help="tum, kitti, euroc, or for .csv/.npz/.npy outputs a rotation representation: quat, "
+                        help="tum, kitti, euroc, colmap, nerf, bop, or for .csv/.npz/.npy outputs a rotation "
+                        "representation: quat, "
                         "quat_xyzw, matrix, euler:SEQ (e.g. euler:ZYX), axis_angle, rot6d "
                         "(default: from OUT's extension; plain outputs hold quat)")
     parser.add_argument("--from", dest="from_format", metavar="FORMAT",
                         help="IN's format when its extension and content do not tell: tum, kitti, euroc, csv, "
-                        "npz, npy, bvh, amass")
+                        "npz, npy, parquet, colmap, nerf, bop, bvh, amass")
     parser.add_argument("--degrees", action="store_true", help="Euler angles in degrees")
     parser.add_argument("--dtype", choices=("float32", "float64"), default="float64",
                         help="precision of the values written, with enough digits to round-trip it "
@@ -90,10 +104,25 @@ def add_convert_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--chunk-size", type=int, default=None, metavar="N",
                         help=f"lines read and written at a time, 1 to {MAX_CHUNK_SIZE:,} (default 10000); memory is "
                         "flat in the file size")
+    many = parser.add_argument_group("many files (IN... OUT/: torchquat.io.shards, on Dask)")
+    many.add_argument("--workers", type=int, metavar="N", help="processes of a local Dask cluster (default: the "
+                      "cores; 1 converts in this process)")
+    many.add_argument("--scheduler", metavar="ADDRESS", help="an existing Dask scheduler (tcp://host:8786) whose "
+                      "workers see the files at the same paths")
+    many.add_argument("--ext", metavar="EXT", help="extension of plain outputs: .npz (default), .csv or .parquet")
+    many.add_argument("--overwrite", action="store_true", help="convert again files whose output is complete "
+                      "(default: skip them, so a second run resumes)")
 
 
 def run_convert(args: argparse.Namespace) -> int:
     """Run ``torchquat convert``; user errors print one line on stderr and return 2."""
+    from .io.shards import is_many_files
+    if is_many_files(args.input, args.output):  # IN... OUT/ (SPEC section 9)
+        from .io.shards_cli import run_many
+        return run_many(args)
+    args.input = args.input[0]
+    if (args.workers, args.scheduler, args.ext) != (None, None, None):
+        return _fail("--workers, --scheduler and --ext apply to many files (IN... OUT/), not to one IN and OUT")
     import numpy as np
 
     import torch

@@ -9,6 +9,7 @@ import os
 from pathlib import Path
 from typing import BinaryIO, Optional, Tuple, Union
 
+from .cameras import CAMERA_FORMATS, camera_extension_problem, camera_format_of
 from .formats import euroc_header_problem
 from .poses import PoseFileError
 from .representations import parse_token
@@ -17,11 +18,12 @@ from .textparse import read_header
 __all__ = ["FORMATS", "POSE_FORMATS", "PLAIN_TARGETS", "POSE_REPRESENTATIONS", "detect_format", "output_plan",
            "check_pose_extension", "skip_byte_order_mark"]
 
-FORMATS = ("tum", "kitti", "euroc", "csv", "npz", "npy")
+FORMATS = ("tum", "kitti", "euroc", "csv", "npz", "npy", "parquet", *CAMERA_FORMATS)
 POSE_FORMATS = ("tum", "kitti", "euroc")
-POSE_REPRESENTATIONS = {"tum": "quat_xyzw", "kitti": "matrix", "euroc": "quat"}  # what each format stores
+POSE_REPRESENTATIONS = {"tum": "quat_xyzw", "kitti": "matrix", "euroc": "quat",  # what each format stores
+                        "colmap": "quat", "nerf": "matrix", "bop": "matrix"}
 PLAIN_TARGETS = ("quat", "quat_xyzw", "matrix", "euler:SEQ", "axis_angle", "rot6d")
-_BY_EXTENSION = {".tum": "tum", ".kitti": "kitti", ".npz": "npz", ".npy": "npy"}
+_BY_EXTENSION = {".tum": "tum", ".kitti": "kitti", ".npz": "npz", ".npy": "npy", ".parquet": "parquet"}
 _SNIFFED = (".txt", ".csv")
 _NAME_IT = "--from on the command line, format= in Python"  # (the messages serve both)
 # The extensions each pose format may be written under; the others named here (and in
@@ -57,7 +59,9 @@ def detect_format(path: PathLike, format: Optional[str] = None) -> str:
 
     Args:
         path: the input file.
-        format: one of ``tum, kitti, euroc, csv, npz, npy`` to skip detection.
+        format: one of ``tum, kitti, euroc, csv, npz, npy, parquet, colmap, nerf, bop`` to skip
+            detection (``images.txt``, ``images.bin``, ``transforms*.json`` and ``scene_gt*.json``
+            are known by name).
 
     Returns:
         The format name.
@@ -66,6 +70,9 @@ def detect_format(path: PathLike, format: Optional[str] = None) -> str:
         if format not in FORMATS:
             raise PoseFileError(path, f"unknown format {format!r}: use one of {', '.join(FORMATS)}")
         return format
+    camera = camera_format_of(path, sniff=True)  # (images.txt, images.bin, transforms.json, scene_gt.json)
+    if camera is not None:
+        return camera
     suffix = Path(path).suffix.lower()
     if suffix in _BY_EXTENSION:
         return _BY_EXTENSION[suffix]
@@ -103,7 +110,8 @@ def _sniff_txt(path: PathLike) -> Optional[str]:
         if count in (8, 12):
             return "tum" if count == 8 else "kitti"
         raise PoseFileError(path, f"a .txt pose file has 8 numbers a line (TUM) or 12 (KITTI); the first data "
-                            f"line has {len(text.split())} fields: name the format ({_NAME_IT})")
+                            f"line has {len(text.split())} fields: name the format ({_NAME_IT}"
+                            f"{'; a COLMAP images.txt is colmap' if len(text.split()) >= 10 else ''})")
     return None
 
 
@@ -130,13 +138,19 @@ def output_plan(path: PathLike, to: Optional[str] = None, degrees: bool = False)
     if to in POSE_FORMATS:
         check_pose_extension(path, to)
         return to, POSE_REPRESENTATIONS[to]
-    plain = {".csv": "csv", ".npz": "npz", ".npy": "npy"}.get(suffix)
+    if to in CAMERA_FORMATS or to is None and camera_format_of(path) is not None:
+        to = to or camera_format_of(path)
+        problem = camera_extension_problem(path, to)
+        if problem is not None:
+            raise PoseFileError(path, problem)
+        return to, POSE_REPRESENTATIONS[to]
+    plain = {".csv": "csv", ".npz": "npz", ".npy": "npy", ".parquet": "parquet"}.get(suffix)
     if to is None:
         if suffix in (".tum", ".kitti"):
             return suffix[1:], "quat_xyzw" if suffix == ".tum" else "matrix"
         if plain is None:
             raise PoseFileError(path, f"cannot tell the output format from the extension {suffix or '(none)'!r}: "
-                                "use .tum, .kitti, .csv, .npz or .npy, or name a pose format "
+                                "use .tum, .kitti, .csv, .npz, .npy or .parquet, or name a pose format "
                                 "(--to or format=: tum, kitti, euroc)")
         return plain, "quat"
     try:
@@ -147,12 +161,12 @@ def output_plan(path: PathLike, to: Optional[str] = None, degrees: bool = False)
         to = "matrix"
     if plain is None:
         raise PoseFileError(path, f"rotations as {to} are written to a plain file: its name must end in .csv, "
-                            ".npz or .npy")
+                            ".npz, .npy or .parquet")
     return plain, to
 
 
 _READ_BACK_AS = {".tum": "TUM", ".kitti": "KITTI", ".txt": "TUM or KITTI text", ".csv": "a CSV",
-                 ".npz": "a NumPy archive", ".npy": "a NumPy array"}
+                 ".npz": "a NumPy archive", ".npy": "a NumPy array", ".parquet": "Parquet"}
 
 
 def check_pose_extension(path: PathLike, format: str) -> None:

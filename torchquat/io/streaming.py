@@ -9,10 +9,15 @@ from typing import Callable, Iterable, Iterator, Optional, Tuple, Union
 
 import numpy as np
 
+from .bop import BopWriter, read_bop
+from .cameras import CAMERA_FORMATS, IdColumns, camera_extension_problem, in_convention
 from .checks import Report
+from .colmap import ColmapWriter, read_colmap
 from .detect import POSE_FORMATS, POSE_REPRESENTATIONS, check_pose_extension, detect_format, output_plan, skip_byte_order_mark
 from .files import atomic_output
 from .formats import EurocWriter, KittiWriter, TumWriter, read_euroc, read_kitti, read_tum
+from .nerf import NerfWriter, read_nerf
+from .parquet import ParquetWriter, read_parquet
 from .plain import CsvWriter, NpyWriter, NpzWriter, read_csv, read_npy, read_npz
 from .poses import PoseFileError, Poses
 from .textparse import LineChunk, decimal_seconds_to_ns, parse_table
@@ -22,9 +27,9 @@ __all__ = ["read_poses", "iter_poses", "write_poses", "convert_file", "read_time
 READ_AHEAD = True  # convert_file parses the next chunk in a thread while this one is converted and written
 DEFAULT_CHUNK_SIZE = 10_000  # small chunks keep numpy temporaries in reused heap memory (measured: less CPU, RSS)
 READERS = {"tum": read_tum, "kitti": read_kitti, "euroc": read_euroc, "csv": read_csv, "npz": read_npz,
-           "npy": read_npy}
+           "npy": read_npy, "parquet": read_parquet, "colmap": read_colmap, "nerf": read_nerf, "bop": read_bop}
 WRITERS = {"tum": TumWriter, "kitti": KittiWriter, "euroc": EurocWriter, "csv": CsvWriter, "npz": NpzWriter,
-           "npy": NpyWriter}
+           "npy": NpyWriter, "parquet": ParquetWriter, "colmap": ColmapWriter, "nerf": NerfWriter, "bop": BopWriter}
 PathLike = Union[str, os.PathLike]
 
 
@@ -164,10 +169,12 @@ def _concatenate(chunks) -> Poses:
     def join(items, cat):
         return None if any(i is None for i in items) else cat(items)
     first = chunks[0]
+    meta = None if first.meta is None else {k: np.concatenate([c.meta[k] for c in chunks]) for k in first.meta}
     return Poses(torch.cat([c.rotations for c in chunks]), first.representation, first.degrees,
                  join([c.positions for c in chunks], torch.cat),
                  join([c.timestamps for c in chunks], np.concatenate),
-                 join([c.timestamps_ns for c in chunks], np.concatenate))
+                 join([c.timestamps_ns for c in chunks], np.concatenate),
+                 meta=meta, maps=first.maps, document=first.document)
 
 
 def write_poses(path: PathLike, poses: Union[Poses, Iterable[Poses]], format: Optional[str] = None,
@@ -178,7 +185,11 @@ def write_poses(path: PathLike, poses: Union[Poses, Iterable[Poses]], format: Op
     Args:
         path: output file.
         poses: the poses, or chunks of them.
-        format: ``tum``, ``kitti``, ``euroc``, ``csv``, ``npz`` or ``npy``; default from the extension.
+        format: ``tum``, ``kitti``, ``euroc``, ``csv``, ``npz``, ``npy``, ``parquet``, ``colmap``,
+            ``nerf`` or ``bop``; default from the extension (and the names ``images.txt``,
+            ``images.bin``, ``transforms.json``, ``scene_gt.json``). Poses read from a camera format
+            are changed to the target's convention first, as ``torchquat convert`` does (see
+            :func:`torchquat.io.cameras.to_convention`); plain outputs keep their identifiers.
         representation: rotation representation of plain outputs (default ``"quat"``).
         degrees: Euler angles in degrees.
         dtype: ``numpy.float64`` (17 significant digits at most) or ``numpy.float32`` (9).
@@ -193,16 +204,22 @@ def write_poses(path: PathLike, poses: Union[Poses, Iterable[Poses]], format: Op
     elif format in WRITERS:
         if format in POSE_FORMATS:
             check_pose_extension(path, format)
+        elif format in CAMERA_FORMATS and camera_extension_problem(path, format):
+            raise PoseFileError(path, camera_extension_problem(path, format))
         name, default_rep = format, POSE_REPRESENTATIONS.get(format, "quat")
     else:
         raise PoseFileError(path, f"unknown format {format!r}: use one of {', '.join(WRITERS)}")
-    chunks = [poses] if isinstance(poses, Poses) else poses
+    chunks = in_convention([poses] if isinstance(poses, Poses) else poses, name, report)  # (cameras.py)
     writer_class = WRITERS[name]
     with atomic_output(path) as stream:
         if name in POSE_FORMATS:
             writer = writer_class(stream, report, np.dtype(dtype).type)
+        elif name in CAMERA_FORMATS:
+            writer = writer_class(stream, report, np.dtype(dtype).type, path)
         else:
             writer = writer_class(stream, report, np.dtype(dtype).type, representation or default_rep, degrees)
+            if name in ("csv", "npz"):  # (identifiers of camera poses as columns)
+                writer = IdColumns(writer, name)
         rows = 0
         for chunk in chunks:
             writer.write(chunk)
@@ -242,7 +259,7 @@ def convert_file(src: PathLike, dst: PathLike, to: Optional[str] = None, from_fo
     source = detect_format(src, from_format)
     target, representation = output_plan(dst, to, degrees)
     report.note(f"reading {src} as {source}; writing {dst} as {target}"
-                + ("" if target in POSE_FORMATS else f" with rotations as {representation}"
+                + ("" if target in POSE_FORMATS + CAMERA_FORMATS else f" with rotations as {representation}"
                    + (" in degrees" if degrees and representation.startswith("euler") else "")))
     if chunk_size < 1:
         raise ValueError(f"convert_file: chunk_size must be positive, got {chunk_size}")
