@@ -14,6 +14,7 @@ __all__ = ["main", "build_parser", "ArgumentParser", "MAX_CHUNK_SIZE"]
 
 MAX_CHUNK_SIZE = 10_000_000  # lines: a chunk this large already takes gigabytes; beyond, allocation fails
 
+
 _LAZY = {
     "crosscheck": ("torchquat.crosscheck", "every conversion against pytorch-kinematics and SciPy: a table of "
                    "max errors, exit 1 on failure"),
@@ -117,6 +118,8 @@ def add_convert_arguments(parser: argparse.ArgumentParser) -> None:
 def run_convert(args: argparse.Namespace) -> int:
     """Run ``torchquat convert``; user errors print one line on stderr and return 2."""
     from .io.shards import is_many_files
+    if args.chunk_size is not None and not 1 <= args.chunk_size <= MAX_CHUNK_SIZE:
+        return _fail(f"--chunk-size must be from 1 to {MAX_CHUNK_SIZE} lines, got {args.chunk_size}")
     if is_many_files(args.input, args.output):  # IN... OUT/ (SPEC section 9)
         from .io.shards_cli import run_many
         return run_many(args)
@@ -135,7 +138,7 @@ def run_convert(args: argparse.Namespace) -> int:
     torch.set_num_threads(1)
     report = Report()
     chunk_size = DEFAULT_CHUNK_SIZE if args.chunk_size is None else args.chunk_size
-    problem = _convert_usage_problem(args, chunk_size)
+    problem = _convert_usage_problem(args)
     if problem:
         return _fail(problem)
     progress = _progress_bar(args.input)
@@ -162,10 +165,8 @@ def run_convert(args: argparse.Namespace) -> int:
     return 0
 
 
-def _convert_usage_problem(args: argparse.Namespace, chunk_size: int) -> Optional[str]:
+def _convert_usage_problem(args: argparse.Namespace) -> Optional[str]:
     """What is wrong with ``convert``'s options (named, with what is expected and the value), or None."""
-    if not 1 <= chunk_size <= MAX_CHUNK_SIZE:
-        return f"--chunk-size must be from 1 to {MAX_CHUNK_SIZE} lines, got {chunk_size}"
     for name, value, expected in (("IN", args.input, "an input file"), ("OUT", args.output, "an output file"),
                                   ("--to", args.to, "a format or a rotation representation"),
                                   ("--from", args.from_format, "a format"), ("--times", args.times, "a times file")):

@@ -343,8 +343,8 @@ def convert_files(inputs: Sequence[PathLike], out_dir: PathLike, to: Optional[st
     if pending and scheduler is None and workers == 1:
         _convert_here([plan[i] for i in pending], options, lambda k, result: done(pending[k], result))
     elif pending:
-        from ..dask import run_files
-        run_files(convert_one, [plan[i] for i in pending], {**options, "one_thread": True}, workers=workers,
-                  scheduler=scheduler,
-                  retries=retries, on_result=lambda k, result: done(pending[k], result))
+        from .cluster import run_files
+        run_files(convert_one, [plan[i] for i in pending], {**options, "one_thread": True},
+                  lambda src, dst, message: FileResult(src, dst, "failed", message=message), workers=workers,
+                  scheduler=scheduler, retries=retries, on_result=lambda k, result: done(pending[k], result))
     return ConvertSummary([results[i] for i in range(len(plan))])

@@ -18,7 +18,6 @@ _FILE_EXTENSIONS = (".tum", ".kitti", ".txt", ".csv", ".npz", ".npy", ".parquet"
 
 def usage_problem(args: argparse.Namespace) -> Optional[str]:
     """What is wrong with the options of a many-files ``convert`` (named, with what was given), or None."""
-    from ..cli import MAX_CHUNK_SIZE
     out = args.output
     if not os.path.isdir(out) and os.path.splitext(out.rstrip("/" + os.sep))[1].lower() in _FILE_EXTENSIONS:
         return (f"OUT must be a folder when IN is several files, a folder or a glob pattern, got the file name "
@@ -31,8 +30,6 @@ def usage_problem(args: argparse.Namespace) -> Optional[str]:
         return "give --workers (a local cluster) or --scheduler (an existing one), not both"
     if args.scheduler is not None and not args.scheduler.strip():
         return "--scheduler is empty: name a scheduler's address, e.g. tcp://10.0.0.1:8786"
-    if args.chunk_size is not None and not 1 <= args.chunk_size <= MAX_CHUNK_SIZE:
-        return f"--chunk-size must be from 1 to {MAX_CHUNK_SIZE} lines, got {args.chunk_size}"
     if args.degrees and not (args.to or "").lower().startswith("euler"):
         return "--degrees applies to Euler angles only: use it with --to euler:SEQ"
     return None
