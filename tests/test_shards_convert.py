@@ -165,8 +165,8 @@ def test_argument_errors(shards, tmp_path, capsys):
 
 
 def test_unreachable_scheduler_is_one_line(shards, tmp_path, capsys, monkeypatch):
-    import torchquat.dask
-    monkeypatch.setattr(torchquat.dask, "SCHEDULER_TIMEOUT", "1s")
+    import torchquat.io.cluster
+    monkeypatch.setattr(torchquat.io.cluster, "SCHEDULER_TIMEOUT", "1s")
     status = main(["convert", str(shards), str(tmp_path / "out"), "--scheduler", "tcp://127.0.0.1:9"])
     err = capsys.readouterr().err
     assert status == 2 and "cannot reach the Dask scheduler" in err and "Traceback" not in err

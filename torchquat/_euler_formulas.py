@@ -114,7 +114,7 @@ def angles(m, f, name: str, eps: float, degrees: bool):
     else:
         out = (m.where(lock, at_lock, t1), middle, m.where(lock, 0.0, t3) * float(sign))
     scale = (180.0 / math.pi if degrees else 1.0) * (ab2 + cd2) / (ab2 + cd2)  # (NaN for a zero quaternion)
-    return tuple(angle * scale for angle in out)
+    return tuple(angle * scale + 0.0 for angle in out)  # (+ 0.0: no -0.0 angles)
 
 
 def _lock_test(m, f, eps: float):

@@ -89,7 +89,7 @@ def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Option
     Example:
         >>> q = euler_to_quat(torch.tensor([30., 20., 10.]), "ZYX", degrees=True)
         >>> quat_to_euler(q, "ZYX", degrees=True)
-        tensor([30.0000, 20.0000, 10.0000])
+        tensor([30., 20., 10.])
     """
     name = parse_convention(convention, "quat_to_euler").name
     degrees = check_degrees("quat_to_euler", degrees)
