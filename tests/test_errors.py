@@ -223,3 +223,55 @@ def test_factories_take_numpy_sizes_and_refuse_non_float_dtypes():
                 fn(3, dtype=dtype)
         with pytest.raises(TypeError, match="expected shape to be an int or a sequence of ints"):
             fn(2.5)
+
+
+def _public_tensor_calls():
+    """Every public function that takes tensors, with a ``None`` in each tensor argument's place."""
+    q, v, R = torch.zeros(4), torch.zeros(3), torch.eye(3)
+    calls = {
+        "quat_to_matrix": lambda x: tq.quat_to_matrix(x), "matrix_to_quat": lambda x: tq.matrix_to_quat(x),
+        "euler_to_quat": lambda x: tq.euler_to_quat(x, "ZYX"), "quat_to_euler": lambda x: tq.quat_to_euler(x, "ZYX"),
+        "euler_to_matrix": lambda x: tq.euler_to_matrix(x, "ZYX"), "matrix_to_euler": lambda x: tq.matrix_to_euler(x, "ZYX"),
+        "euler_gimbal_lock": lambda x: tq.euler_gimbal_lock(x, "ZYX"),
+        "axis_angle_to_quat": tq.axis_angle_to_quat, "quat_to_axis_angle": tq.quat_to_axis_angle,
+        "axis_angle_to_matrix": tq.axis_angle_to_matrix, "matrix_to_axis_angle": tq.matrix_to_axis_angle,
+        "rot6d_to_matrix": tq.rot6d_to_matrix, "matrix_to_rot6d": tq.matrix_to_rot6d, "rot9d_to_matrix": tq.rot9d_to_matrix,
+        "convert": lambda x: tq.convert(x, "quat", "matrix"),
+        "quat_conjugate": tq.quat_conjugate, "quat_inverse": tq.quat_inverse, "quat_normalize": tq.quat_normalize,
+        "quat_standardize": tq.quat_standardize, "quat_wxyz_to_xyzw": tq.quat_wxyz_to_xyzw,
+        "quat_xyzw_to_wxyz": tq.quat_xyzw_to_wxyz, "quat_from_jpl": tq.quat_from_jpl, "quat_to_jpl": tq.quat_to_jpl,
+    }
+    cases = [(name, "x" if name in ("convert", "rot6d_to_matrix", "rot9d_to_matrix") else None, fn)
+             for name, fn in calls.items()]
+    for name, first, second, make in (
+            ("quat_multiply", "p", "q", lambda a, b: tq.quat_multiply(a, b)),
+            ("quat_rotate", "q", "v", lambda a, b: tq.quat_rotate(a, b)),
+            ("quat_slerp", "q0", "q1", lambda a, b: tq.quat_slerp(a, b, 0.5)),
+            ("quat_geodesic_distance", "q1", "q2", lambda a, b: tq.quat_geodesic_distance(a, b)),
+            ("matrix_geodesic_distance", "R1", "R2", lambda a, b: tq.matrix_geodesic_distance(a, b))):
+        other = {"quat_rotate": v, "matrix_geodesic_distance": R}.get(name, q)
+        this = R if name == "matrix_geodesic_distance" else q
+        cases.append((name, first, lambda x, make=make, other=other: make(x, other)))
+        cases.append((name, second, lambda x, make=make, this=this: make(this, x)))
+    return cases
+
+
+@pytest.mark.parametrize("name, argument, call", _public_tensor_calls(), ids=lambda c: c if isinstance(c, str) else "")
+def test_none_where_a_tensor_belongs_is_a_type_error_naming_function_and_argument(name, argument, call):
+    with pytest.raises(TypeError, match=rf"^{name}: expected \w+ to be a tensor, got NoneType$") as err:
+        call(None)
+    if argument is not None:
+        assert f"expected {argument} to be a tensor" in str(err.value)
+
+
+@pytest.mark.parametrize("factory", [tq.quat_identity, tq.random_quat])
+@pytest.mark.parametrize("shape", [-1, (2, -3), (-2,)])
+def test_negative_sizes_are_a_value_error(factory, shape):
+    with pytest.raises(ValueError, match=rf"^{factory.__name__}: expected a shape of non-negative sizes"):
+        factory(shape)
+
+
+@pytest.mark.parametrize("token", ["euler:", "euler:XYZW", "euler:xYz", "quat:ZYX"])
+def test_malformed_convert_tokens_raise_convention_error_even_with_a_convention_keyword(token):
+    with pytest.raises(tq.ConventionError if token.startswith("euler") else ValueError, match="^convert: "):
+        tq.convert(torch.zeros(3), token, "matrix", convention="XYZ")

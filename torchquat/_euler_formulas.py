@@ -11,7 +11,6 @@ matrices, the latter without a square root or a quaternion in between.
 From angles: the product of the three elementary rotations, expanded with its zeros left out.
 """
 
-import functools
 import math
 
 from ._formulas import OUTER, safe_sqrt, standardize
@@ -19,8 +18,7 @@ from .conventions import EULER_CONVENTIONS
 
 
 
-@functools.lru_cache(maxsize=None)
-def permutation(name: str):
+def _permutation(name: str):
     """``(a, b, c, d)`` as coefficient dicts over ``(w, x, y, z)`` and the sign of the permutation
     (Bernardes and Viollet's extrinsic form; an intrinsic sequence is the reversed extrinsic one)."""
     conv = EULER_CONVENTIONS[name]
@@ -64,12 +62,11 @@ def forms_of_quat(name: str, q):
             "day": 2.0 * (a * b), "dax": aa - bb, "dcy": 2.0 * (c * d), "dcx": cc - dd}
 
 
-@functools.lru_cache(maxsize=None)
-def _matrix_form_terms(name: str):
+def _form_terms(name: str):
     """Each form as a linear function of R's entries (index -1: the constant), from
     ``q_u q_v = (4 q q^T)_uv / 4`` (the common factor 4 dropped: the angles are ratios). A few
     entries each, where the products they sum would take a dozen."""
-    abcd = dict(zip("abcd", permutation(name)[0]))
+    abcd = dict(zip("abcd", _permutation(name)[0]))
     terms = {}
     for form, products in _FORMS.items():
         total = {}
@@ -82,10 +79,19 @@ def _matrix_form_terms(name: str):
     return terms
 
 
+# (tables built once at import, read as plain dicts: torch.compile traces through them as constants)
+_PERMUTATIONS = {name: _permutation(name) for name in EULER_CONVENTIONS}
+_MATRIX_FORMS = {name: _form_terms(name) for name in EULER_CONVENTIONS}
+
+
+def permutation(name: str):
+    return _PERMUTATIONS[name]
+
+
 def forms_of_matrix(name: str, r):
     values = dict(enumerate(r))
     values[-1] = 1.0
-    return {form: _combine(coefficients, values) for form, coefficients in _matrix_form_terms(name).items()}
+    return {form: _combine(coefficients, values) for form, coefficients in _MATRIX_FORMS[name].items()}
 
 
 def angles(m, f, name: str, eps: float, degrees: bool):

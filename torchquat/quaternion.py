@@ -142,6 +142,8 @@ def _factory_arguments(fn: str, shape, dtype) -> Tuple[Tuple[int, ...], torch.dt
             shape = tuple(operator.index(n) for n in shape)
         except TypeError:
             raise TypeError(f"{fn}: expected shape to be an int or a sequence of ints, got {shape!r}") from None
+    if any(n < 0 for n in shape):
+        raise ValueError(f"{fn}: expected a shape of non-negative sizes, got {shape}")
     dtype = torch.get_default_dtype() if dtype is None else dtype
     if not isinstance(dtype, torch.dtype) or not dtype.is_floating_point:
         raise TypeError(f"{fn}: expected a floating-point dtype, got {dtype!r}")
