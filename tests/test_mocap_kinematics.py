@@ -80,8 +80,9 @@ def test_gradcheck_in_float64():
 
 def test_one_quaternion_product_per_tree_depth(monkeypatch):
     calls = []
-    original = torchquat.quat_multiply
-    monkeypatch.setattr(torchquat, "quat_multiply", lambda p, q: calls.append(p.shape) or original(p, q))
+    import torchquat.kinematics
+    original = torchquat.kinematics.quat_multiply
+    monkeypatch.setattr(torchquat.kinematics, "quat_multiply", lambda p, q: calls.append(p.shape) or original(p, q))
     q, offsets, root = sample((10,), joints=6)
     forward_kinematics(PARENTS, offsets, q, root)
     assert [shape[-2] for shape in calls] == [2, 2, 1]  # depths 1, 2, 3 hold 2, 2 and 1 joints

@@ -2,14 +2,11 @@
 the eager batch, and the opt-in compiled kernel (``use_compiled_kernels``) give the same answers and
 gradients."""
 
-import operator
-
 import pytest
 import torch
 
 import torchquat as tq
 from function_table import ALL, assert_paths_agree, compiled_against_eager
-from rotation_samples import cube_rotations
 
 # One representative per kernel; compiling all 100+ table entries would take minutes.
 # every kernel with a column-wise compiled form, and one of each other kind

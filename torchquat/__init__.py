@@ -10,6 +10,7 @@ from .conventions import EULER_CONVENTIONS
 from .distance import matrix_geodesic_distance, quat_geodesic_distance
 from .errors import ConventionError, ShapeError
 from .euler import euler_gimbal_lock, euler_to_matrix, euler_to_quat, matrix_to_euler, quat_to_euler
+from .kinematics import forward_kinematics
 from .matrix import matrix_to_quat, quat_to_matrix
 from .quaternion import (
     quat_conjugate, quat_from_jpl, quat_identity, quat_inverse, quat_multiply, quat_normalize, quat_rotate,
@@ -33,5 +34,14 @@ __all__ = [
     "quat_rotate", "quat_slerp", "quat_identity", "random_quat",
     "quat_wxyz_to_xyzw", "quat_xyzw_to_wxyz", "quat_from_jpl", "quat_to_jpl",
     "quat_geodesic_distance", "matrix_geodesic_distance",
-    "use_compiled_kernels", "compiled_kernels_enabled",
+    "use_compiled_kernels", "compiled_kernels_enabled", "forward_kinematics",
 ]
+
+
+def __getattr__(name: str):
+    """``torchquat.io``, ``torchquat.traj`` and ``torchquat.dask`` on first use, so that ``import
+    torchquat`` loads neither file formats nor NumPy-side code it does not need."""
+    if name in ("io", "traj", "dask"):
+        import importlib
+        return importlib.import_module(f"{__name__}.{name}")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -185,11 +185,3 @@ def columns(formula, inputs: Sequence[Tensor], out_shape, row_dims: int, static,
         return _HostGradient.apply(result, arrays, widths, formula, static, fallback, *inputs)
     return result
 
-
-def _blocks(arrays, rows: int):
-    """``(start, stop, columns)`` for each block of rows: each input's columns in that block,
-    contiguous (NumPy takes up to 3x as long a step on strided ones) and in cache; a one-row
-    input's own columns in every block (broadcast)."""
-    for start in range(0, rows, BLOCK_ROWS):
-        stop = min(start + BLOCK_ROWS, rows)
-        yield start, stop, [c for a in arrays for c in (a if a.shape[0] == 1 else a[start:stop]).T.copy()]

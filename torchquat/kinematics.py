@@ -10,7 +10,8 @@ from typing import List, Sequence, Tuple, Union
 import torch
 from torch import Tensor
 
-import torchquat as _tq  # public names only, looked up at call time (no import cycle with __init__)
+from .errors import ShapeError
+from .quaternion import quat_multiply, quat_rotate
 
 __all__ = ["forward_kinematics", "tree_levels"]
 
@@ -95,13 +96,13 @@ def forward_kinematics(parents: Parents, offsets: Tensor, rotations: Tensor,
     count = len(parents)
     matrices = rotations.dim() >= 3 and tuple(rotations.shape[-2:]) == (3, 3) and rotations.shape[-3] == count
     if not matrices and (rotations.dim() < 2 or tuple(rotations.shape[-2:]) != (count, 4)):
-        raise _tq.ShapeError(f"{fn}: expected rotations of shape (..., {count}, 4) or (..., {count}, 3, 3) for "
+        raise ShapeError(f"{fn}: expected rotations of shape (..., {count}, 4) or (..., {count}, 3, 3) for "
                              f"{count} joints, got {tuple(rotations.shape)}")
     if offsets.dim() < 2 or tuple(offsets.shape[-2:]) != (count, 3):
-        raise _tq.ShapeError(f"{fn}: expected offsets of shape ({count}, 3) or (..., {count}, 3), "
+        raise ShapeError(f"{fn}: expected offsets of shape ({count}, 3) or (..., {count}, 3), "
                              f"got {tuple(offsets.shape)}")
     if root_positions.dim() < 1 or root_positions.shape[-1] != 3:
-        raise _tq.ShapeError(f"{fn}: expected root_positions of shape (..., 3), got {tuple(root_positions.shape)}")
+        raise ShapeError(f"{fn}: expected root_positions of shape (..., 3), got {tuple(root_positions.shape)}")
     for name, x in (("rotations", rotations), ("offsets", offsets), ("root_positions", root_positions)):
         if not x.is_floating_point():
             raise TypeError(f"{fn}: expected {name} of a floating dtype, got {x.dtype}")
@@ -109,7 +110,7 @@ def forward_kinematics(parents: Parents, offsets: Tensor, rotations: Tensor,
     try:
         batch = torch.broadcast_shapes(rot_batch, offsets.shape[:-2], root_positions.shape[:-1])
     except RuntimeError:
-        raise _tq.ShapeError(f"{fn}: batch shapes do not broadcast: rotations {tuple(rot_batch)}, offsets "
+        raise ShapeError(f"{fn}: batch shapes do not broadcast: rotations {tuple(rot_batch)}, offsets "
                              f"{tuple(offsets.shape[:-2])}, root_positions "
                              f"{tuple(root_positions.shape[:-1])}") from None
     tail = (3, 3) if matrices else (4,)
@@ -132,8 +133,8 @@ def forward_kinematics(parents: Parents, offsets: Tensor, rotations: Tensor,
             world_rot.append(parent_rot @ local)
             world_pos.append(parent_pos + (parent_rot @ offset.unsqueeze(-1)).squeeze(-1))
         else:
-            world_rot.append(_tq.quat_multiply(parent_rot, local))
-            world_pos.append(parent_pos + _tq.quat_rotate(parent_rot, offset))
+            world_rot.append(quat_multiply(parent_rot, local))
+            world_pos.append(parent_pos + quat_rotate(parent_rot, offset))
     order = [j for level in levels for j in level]
     back = [0] * count
     for i, j in enumerate(order):

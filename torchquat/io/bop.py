@@ -7,7 +7,7 @@ in the file's order; other keys of an object are ignored, a missing one is named
 """
 
 import json
-from typing import BinaryIO, Iterator, List
+from typing import BinaryIO, Iterator
 
 import numpy as np
 import torch

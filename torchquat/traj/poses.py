@@ -85,7 +85,7 @@ def apply_similarity(reference, estimate, align: bool, scale: bool):
     (``T @ P``); ``scale`` without ``align`` corrects the scale alone. Poses with a NaN or
     infinite position (in either trajectory) get weight 0, so the others still align."""
     from .align import align as umeyama
-    (r_ref, p_ref), (r_est, p_est) = reference, estimate
+    (_, p_ref), (r_est, p_est) = reference, estimate
     if not (align or scale):
         return r_est, p_est
     valid = torch.isfinite(p_ref.sum(-1) + p_est.sum(-1))  # (a NaN or infinity anywhere in the row)
