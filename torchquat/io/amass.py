@@ -85,7 +85,7 @@ def read_amass(path) -> Motion:
 
     Raises:
         PoseFileError: no ``poses``, a ``poses`` width that is not 3 x 24, 52 or 55, a ``trans``
-        of another length, or no frame rate under either key.
+            of another length, or no frame rate under either key.
 
     Shape:
         ``poses`` ``(T, 3 J)`` -> ``rotations`` ``(T, J, 4)``; ``trans`` ``(T, 3)`` -> ``root_positions``.

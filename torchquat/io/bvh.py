@@ -305,8 +305,8 @@ def read_bvh(path) -> Motion:
 
     Raises:
         PoseFileError: a malformed file; the message names the file and the line (a frame line
-        with too few or too many numbers, an unclosed brace, an unknown channel), or says how
-        ``Frames:`` disagrees with the frame lines.
+            with too few or too many numbers, an unclosed brace, an unknown channel), or says how
+            ``Frames:`` disagrees with the frame lines.
 
     Shape:
         ``rotations`` ``(T, J, 4)``, ``root_positions`` ``(T, 3)``, ``skeleton.offsets`` ``(J, 3)``.
