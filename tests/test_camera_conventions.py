@@ -75,6 +75,49 @@ def test_plain_outputs_keep_identifiers(tmp_path):
     assert (again.positions - to_convention(poses, "npz").positions).abs().max() == 0
 
 
+IMAGES_TXT = ("# COLMAP images.txt\n1 0.5 0.5 0.5 0.5 1 2 3 1 my image.png\n\n"
+              "4 0 1 0 0 0 0 1 2 b,c.png\n2.5 3.5 -1\n9 0.6 0 0.8 0 -4 5 6.25 1 x.jpg\n\n")
+
+
+def _colmap_to(tmp_path, suffix):
+    """images.txt -> p.SUFFIX by the command line; (what was read, what reads back)."""
+    from torchquat.cli import main
+    (tmp_path / "images.txt").write_text(IMAGES_TXT)
+    assert main(["convert", str(tmp_path / "images.txt"), str(tmp_path / f"p.{suffix}")]) == 0
+    return read_poses(tmp_path / "images.txt"), read_poses(tmp_path / f"p.{suffix}")
+
+
+def _same_world_poses_and_ids(source, back):
+    world = to_convention(source, "tum")  # (what a plain output holds: the camera's pose in the world)
+    assert torch.equal(back.rotations, world.rotations) and torch.equal(back.positions, world.positions)
+    assert back.meta.keys() == source.meta.keys() == {"image_id", "camera_id", "name"}
+    for key, values in source.meta.items():
+        assert back.meta[key].dtype.kind == values.dtype.kind and back.meta[key].tolist() == values.tolist()
+
+
+def test_colmap_csv_reads_back_with_its_identifiers(tmp_path):
+    source, back = _colmap_to(tmp_path, "csv")
+    assert (tmp_path / "p.csv").read_text().splitlines()[0] == "image_id,camera_id,name,x,y,z,qw,qx,qy,qz"
+    _same_world_poses_and_ids(source, back)
+    assert back.meta["name"].tolist() == ["my image.png", "b,c.png", "x.jpg"]
+    (tmp_path / "again").mkdir()
+    write_poses(tmp_path / "again" / "images.txt", back)
+    again = read_poses(tmp_path / "again" / "images.txt")  # (and back to COLMAP: the same ids and numbers)
+    assert again.meta["name"].tolist() == source.meta["name"].tolist()
+    assert (again.positions - source.positions).abs().max() < 1e-14
+
+
+def test_identifier_columns_errors_name_the_line(tmp_path):
+    from torchquat.io import PoseFileError
+    path = tmp_path / "ids.csv"
+    path.write_text("image_id,name,x,y,z,qw,qx,qy,qz\n1,a.png,0,0,0,1,0,0,0\n2.5,b.png,0,0,0,1,0,0,0\n")
+    with pytest.raises(PoseFileError, match=r"ids.csv:3: column 'image_id' holds '2.5'"):
+        read_poses(path)
+    path.write_text("image_id,name,x,y,z,qw,qx,qy,qz\n# c\n1,0,0,0,1,0,0,0\n")
+    with pytest.raises(PoseFileError, match=r"ids.csv:3: expected 9 columns"):
+        read_poses(path)
+
+
 def test_formats_found_by_name(tmp_path):
     assert output_plan(tmp_path / "images.bin") == ("colmap", "quat")
     assert output_plan(tmp_path / "transforms_train.json") == ("nerf", "matrix")

@@ -108,3 +108,10 @@ def test_without_pyarrow_the_error_names_the_extra(tmp_path):
     assert run.returncode == 2 and "Traceback" not in run.stderr
     assert "need pyarrow" in run.stderr and "torchquat[dask]" in run.stderr
     assert not (tmp_path / "a.parquet").exists()
+
+
+def test_colmap_identifiers_survive_parquet(tmp_path):
+    from test_camera_conventions import _colmap_to, _same_world_poses_and_ids
+    source, back = _colmap_to(tmp_path, "parquet")
+    assert pq.read_schema(tmp_path / "p.parquet").names[:3] == ["image_id", "camera_id", "name"]
+    _same_world_poses_and_ids(source, back)

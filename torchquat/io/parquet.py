@@ -3,7 +3,9 @@
 Columns: ``timestamp`` (float64 seconds, when the poses have times), ``x,y,z`` (when they have
 positions), then the rotation columns named as in a plain CSV (:func:`~torchquat.io.plain.rotation_columns`:
 ``qw,qx,qy,qz``, ``ZYX_1_deg,...``, ``r00..r22``, ...), so that reading the file back recovers the
-representation. Values are float64, or float32 with ``dtype=numpy.float32`` (times stay float64).
+representation. Identifiers of camera poses (``image_id``, ``camera_id``, ``name``, ``file_path``,
+``obj_id``: int64 or string columns) come first, as in the CSV, and read back into ``Poses.meta``.
+Values are float64, or float32 with ``dtype=numpy.float32`` (times stay float64).
 The file is written in row groups of about :data:`ROW_GROUP_ROWS` rows and read back one record
 batch at a time, so memory stays flat in the file's size.
 
@@ -16,8 +18,9 @@ from typing import BinaryIO, Iterator, List, Optional
 import numpy as np
 import torch
 
+from .cameras import ID_FIELDS
 from .checks import Report
-from .plain import _checked, parse_columns, rotation_columns
+from .plain import _checked, id_columns, id_values, parse_columns, rotation_columns
 from .poses import PoseFileError, Poses
 from .representations import SHAPES
 
@@ -63,6 +66,7 @@ def read_parquet(path, stream: BinaryIO, chunk_lines: int, report: Report, **_) 
     has_time, has_position, representation, degrees = parse_columns(path, names, None)
     shape = SHAPES[representation.partition(":")[0]]
     start = int(has_time) + 3 * has_position
+    ids = id_columns(names)
     row = 0
     try:
         batches = handle.iter_batches(batch_size=max(1, chunk_lines), columns=names)
@@ -70,7 +74,8 @@ def read_parquet(path, stream: BinaryIO, chunk_lines: int, report: Report, **_) 
             n = batch.num_rows
             if n == 0:
                 continue
-            columns = [_column(path, batch.column(i), name, row) for i, name in enumerate(names)]
+            meta = {name: _id_column(path, batch.column(i), name, row) for i, name in enumerate(ids)} or None
+            columns = [_column(path, batch.column(i), name, row) for i, name in enumerate(names) if i >= len(ids)]
             values = np.stack(columns, axis=1)
             rotations = np.ascontiguousarray(values[:, start:]).reshape(n, *shape)
             rows = np.arange(row, row + n)
@@ -80,7 +85,7 @@ def read_parquet(path, stream: BinaryIO, chunk_lines: int, report: Report, **_) 
                 raise PoseFileError(path, f"rotation row {err.line}: {err.problem}") from None
             yield Poses(torch.from_numpy(rotations), representation, degrees=degrees,
                         positions=torch.from_numpy(values[:, start - 3:start].copy()) if has_position else None,
-                        timestamps=values[:, 0].copy() if has_time else None)
+                        timestamps=values[:, 0].copy() if has_time else None, meta=meta)
             row += n
     except pyarrow.ArrowException as err:
         raise PoseFileError(path, f"not a readable Parquet file ({err})") from None
@@ -100,6 +105,18 @@ def _column(path, array, name: str, row: int) -> np.ndarray:
     if not finite.all():
         raise PoseFileError(path, f"column {name!r} row {row + int(np.argmin(finite))} is not finite (nan or inf)")
     return values
+
+
+def _id_column(path, array, name: str, row: int) -> np.ndarray:
+    """An identifier column of a record batch: int64 ids or str names, refusing nulls."""
+    if array.null_count:
+        first = int(np.argmax(np.asarray(array.is_null())))
+        raise PoseFileError(path, f"column {name!r} row {row + first} is missing (null)")
+    values = array.to_pylist()
+    try:
+        return id_values(name, values)
+    except (TypeError, ValueError):
+        raise PoseFileError(path, f"column {name!r} has type {array.type}, not integer ids") from None
 
 
 class ParquetWriter:
@@ -128,6 +145,7 @@ class ParquetWriter:
         self.stream, self.report, self.dtype = stream, report, np.dtype(dtype).type
         self.representation, self.degrees, self.rows = representation, degrees, 0
         self.columns: Optional[tuple] = None
+        self.ids: List[str] = []  # identifier columns (ID_FIELDS found in the first chunk's meta)
         self.pending: List[Poses] = []
         self.pending_rows = 0
         self.writer = None
@@ -137,6 +155,7 @@ class ParquetWriter:
     def write(self, poses: Poses) -> None:
         if self.columns is None:
             self.columns = (poses.timestamps is not None, poses.positions is not None)
+            self.ids = [k for k in ID_FIELDS if k in (poses.meta or {})]
         if not len(poses):
             return
         self.pending.append(poses.to(self.representation, degrees=self.degrees))
@@ -145,14 +164,15 @@ class ParquetWriter:
             self._flush()
 
     def _names(self) -> List[str]:
-        names = (["timestamp"] if self.columns[0] else []) + (["x", "y", "z"] if self.columns[1] else [])
+        names = self.ids + (["timestamp"] if self.columns[0] else []) + (["x", "y", "z"] if self.columns[1] else [])
         return names + rotation_columns(self.representation, self.degrees)
 
     def _flush(self) -> None:
         if not self.pending:
             return
         pyarrow, parquet = self.modules
-        arrays = []
+        arrays = [pyarrow.array(np.concatenate([np.asarray(p.meta[k]) for p in self.pending]).tolist(),
+                                type=pyarrow.int64() if k.endswith("_id") else pyarrow.string()) for k in self.ids]
         if self.columns[0]:
             arrays.append(self._seconds())
         if self.columns[1]:
@@ -161,7 +181,8 @@ class ParquetWriter:
         rotations = torch.cat([p.rotations for p in self.pending]).numpy()
         rotations = rotations.reshape(len(rotations), -1).astype(self.dtype, copy=False)
         arrays.extend(rotations[:, i] for i in range(rotations.shape[1]))
-        table = pyarrow.table([pyarrow.array(np.ascontiguousarray(a)) for a in arrays], names=self._names())
+        arrays[len(self.ids):] = [pyarrow.array(np.ascontiguousarray(a)) for a in arrays[len(self.ids):]]
+        table = pyarrow.table(arrays, names=self._names())
         if self.writer is None:
             self.writer = parquet.ParquetWriter(self.stream, table.schema)
         self.writer.write_table(table, row_group_size=len(table))
@@ -184,6 +205,7 @@ class ParquetWriter:
         self._flush()
         if self.writer is None:  # (no rows at all: an empty table with the columns)
             pyarrow, parquet = self.modules
-            schema = pyarrow.schema([(name, pyarrow.float64()) for name in self._names()])
+            types = {k: pyarrow.int64() if k.endswith("_id") else pyarrow.string() for k in self.ids}
+            schema = pyarrow.schema([(name, types.get(name, pyarrow.float64())) for name in self._names()])
             self.writer = parquet.ParquetWriter(self.stream, schema)
         self.writer.close()

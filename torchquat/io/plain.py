@@ -11,6 +11,10 @@ the rotation columns, named so that reading the file back recovers the represent
 ``axis_angle``  ``ax,ay,az``
 ``rot6d``       ``r6_1,...,r6_6``
 ==============  ==============================================
+
+Camera poses keep their identifiers (:data:`~torchquat.io.cameras.ID_FIELDS`: ``image_id``,
+``camera_id``, ``name``, ``file_path``, ``obj_id``) as leading columns (CSV quoting where a name
+needs it) or ``.npz`` arrays; reading the file back puts them in ``Poses.meta`` under those names.
 """
 
 import re
@@ -20,15 +24,16 @@ from typing import BinaryIO, Iterator, List, Optional, Tuple
 import numpy as np
 import torch
 
+from .cameras import ID_FIELDS
 from .checks import Report, check_matrices, check_rot6d, normalize_quaternions
 from .numtext import Floats
 from .poses import PoseFileError, Poses
 from .representations import SHAPES, parse_token
-from .textparse import decimal_seconds_to_ns, iter_line_chunks, parse_table, read_header
+from .textparse import LineChunk, decimal_seconds_to_ns, iter_line_chunks, lines_text, parse_table, read_header
 from .textwrite import format_table, positions_of, time_column
 
-__all__ = ["rotation_columns", "parse_columns", "read_csv", "read_npz", "read_npy", "CsvWriter", "NpzWriter",
-           "NpyWriter", "representation_of_shape"]
+__all__ = ["rotation_columns", "parse_columns", "id_columns", "id_values", "read_csv", "read_npz", "read_npy",
+           "CsvWriter", "NpzWriter", "NpyWriter", "representation_of_shape"]
 
 _FIXED = {
     "quat": ["qw", "qx", "qy", "qz"],
@@ -53,9 +58,33 @@ def rotation_columns(representation: str, degrees: bool = False) -> List[str]:
     return _FIXED["matrix" if name == "rot9d" else name]
 
 
+def id_columns(names: List[str]) -> List[str]:
+    """The leading identifier columns of a header (:data:`~torchquat.io.cameras.ID_FIELDS`, each once).
+
+    Example:
+        >>> id_columns(["image_id", "camera_id", "name", "x", "y", "z", "qw", "qx", "qy", "qz"])
+        ['image_id', 'camera_id', 'name']
+    """
+    found: List[str] = []
+    for name in names:
+        if name not in ID_FIELDS or name in found:
+            break
+        found.append(name)
+    return found
+
+
+_INTEGER_IDS = ("image_id", "camera_id", "obj_id")
+
+
+def id_values(name: str, values: list) -> np.ndarray:
+    """An identifier column as ``Poses.meta`` holds it: int64 ids, str names (ValueError if not ints)."""
+    return np.array([int(v) for v in values], dtype=np.int64) if name in _INTEGER_IDS else np.array(values, dtype=str)
+
+
 def parse_columns(path, names: List[str], line: int = 1) -> Tuple[bool, bool, str, bool]:
-    """From a header (at ``line``, for errors): (has timestamp, has positions, representation, degrees)."""
-    rest = list(names)
+    """From a header (at ``line``, for errors): (has timestamp, has positions, representation, degrees).
+    Leading identifier columns (:func:`id_columns`) are allowed and skipped."""
+    rest = list(names)[len(id_columns(names)):]
     has_time = bool(rest) and rest[0] == "timestamp"
     rest = rest[1:] if has_time else rest
     has_position = rest[:3] == ["x", "y", "z"]
@@ -67,7 +96,7 @@ def parse_columns(path, names: List[str], line: int = 1) -> Tuple[bool, bool, st
     if len(rest) == 3 and all(found) and len({m.group(1) for m in found}) == 1 \
             and [m.group(2) for m in found] == ["1", "2", "3"] and len({m.group(3) for m in found}) == 1:
         return has_time, has_position, f"euler:{found[0].group(1)}", found[0].group(3) is not None
-    raise PoseFileError(path, f"unrecognised CSV header {','.join(names)!r}: expected [timestamp,][x,y,z,] then "
+    raise PoseFileError(path, f"unrecognised CSV header {','.join(names)!r}: expected [ids,][timestamp,][x,y,z,] then "
                         "qw,qx,qy,qz | qx,qy,qz,qw | r00..r22 | SEQ_1,SEQ_2,SEQ_3[_deg] | ax,ay,az | r6_1..r6_6", line)
 
 
@@ -91,18 +120,67 @@ def read_csv(path, stream: BinaryIO, chunk_lines: int, report: Report, **_) -> I
     has_time, has_position, representation, degrees = parse_columns(path, names, header_line)
     shape = SHAPES[representation.partition(":")[0]]
     start = int(has_time) + 3 * has_position
+    ids = id_columns(names)
+    numbers = names[len(ids):]
     for chunk in iter_line_chunks(stream, chunk_lines, first_line=next_line):
-        table = parse_table(path, chunk, (len(names),), f"CSV columns {','.join(names)}", delimiter=b",",
+        fields = None
+        if ids:
+            chunk, fields = _split_ids(path, chunk, names)
+        table = parse_table(path, chunk, (len(numbers),), f"CSV columns {','.join(numbers)}", delimiter=b",",
                             keep_first_text=has_time)
         if len(table.values) == 0:
             continue
         values = table.values
+        meta = None
+        if ids:
+            rows = [fields[i] for i in table.line_numbers - chunk.first_line]
+            meta = {}
+            for k, name in enumerate(ids):
+                try:
+                    meta[name] = id_values(name, [row[k] for row in rows])
+                except ValueError:
+                    bad = next(i for i, row in enumerate(rows) if not _is_integer(row[k]))
+                    raise PoseFileError(path, f"column {name!r} holds {rows[bad][k]!r}, not an integer id",
+                                        int(table.line_numbers[bad])) from None
         rotations = np.ascontiguousarray(values[:, start:]).reshape(len(values), *shape)
         rotations = _checked(path, rotations, representation, table.line_numbers, report)
         yield Poses(torch.from_numpy(rotations), representation, degrees=degrees,
                     positions=torch.from_numpy(values[:, start - 3:start].copy()) if has_position else None,
                     timestamps=values[:, 0].copy() if has_time else None,
-                    timestamps_ns=decimal_seconds_to_ns(table.first_fields) if has_time else None)
+                    timestamps_ns=decimal_seconds_to_ns(table.first_fields) if has_time else None, meta=meta)
+
+
+def _is_integer(text: str) -> bool:
+    try:
+        int(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _split_ids(path, chunk: LineChunk, names: List[str]) -> Tuple[LineChunk, List[Optional[List[str]]]]:
+    """Cut the leading identifier fields off each data line (read as Python's ``csv`` writes them,
+    quoted where a name holds a comma): the numbers that are left, as a chunk with the same line
+    numbers, and each line's identifier fields (None for blank and comment lines)."""
+    import csv
+    count = len(id_columns(names))
+    lines, fields = [], []
+    for number, line in enumerate(chunk.lines, chunk.first_line):
+        stripped = line.strip()
+        if not stripped or stripped.startswith(b"#"):
+            lines.append(line)
+            fields.append(None)
+            continue
+        try:
+            row = next(csv.reader([line.decode("utf-8").rstrip("\r\n")]))
+        except (UnicodeDecodeError, csv.Error) as err:
+            raise PoseFileError(path, f"cannot read {lines_text(line)!r} as CSV ({err})", number) from None
+        if len(row) != len(names):
+            raise PoseFileError(path, f"expected {len(names)} columns ({','.join(names)}), found {len(row)}: "
+                                f"{lines_text(line)!r}", number)
+        lines.append(",".join(row[count:]).encode() + b"\n")
+        fields.append(row[:count])
+    return LineChunk(chunk.first_line, lines), fields
 
 
 def representation_of_shape(path, shape: Tuple[int, ...]) -> str:
@@ -173,9 +251,10 @@ def read_npz(path, stream: BinaryIO, chunk_lines: int, report: Report, **_) -> I
             raise PoseFileError(path, f"array 'position' has shape {position.shape}; {rows} rotations need ({rows}, 3)")
         seconds = _array_of(path, data, "timestamp", "fiu", rows) if "timestamp" in data else None
         ns = _array_of(path, data, "timestamp_ns", "iu", rows) if "timestamp_ns" in data else None
+        meta = {k: _array_of(path, data, k, "iuU", rows) for k in ID_FIELDS if k in data} or None
     poses = Poses(torch.from_numpy(rotations), representation, degrees=degrees,
                   positions=None if position is None else torch.from_numpy(position.astype(np.float64)),
-                  timestamps=seconds, timestamps_ns=ns)
+                  timestamps=seconds, timestamps_ns=ns, meta=meta)
     yield from _array_chunks(poses, chunk_lines)
 
 
