@@ -67,6 +67,31 @@ def test_different_lengths_without_times_names_both(tmp_path, capsys):
     assert "a.txt has 5 poses" in err and "b.txt 4" in err
 
 
+def test_colmap_poses_are_evaluated_as_camera_poses_in_the_world(tmp_path, capsys):
+    """COLMAP stores world -> camera: eval inverts it (as convert does for TUM) and says so."""
+    rng = np.random.default_rng(3)
+    q = rng.normal(size=(6, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)  # (w, x, y, z): world -> camera rotations
+    centres = rng.normal(size=(6, 3)) * 4
+    w, x, y, z = q.T
+    R = np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+                  2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+                  2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=1).reshape(6, 3, 3)
+    t = -np.einsum("nij,nj->ni", R, centres)  # t = -R c
+    def text(values):
+        return " ".join(f"{v:.17g}" for v in values)
+    images = [f"{k + 1} {text(q[k])} {text(t[k])} 1 im{k}.png\n\n" for k in range(6)]
+    (tmp_path / "images.txt").write_text("".join(images))
+    tum = [f"{k} {text(centres[k])} {text([-x[k], -y[k], -z[k], w[k]])}\n" for k in range(6)]
+    (tmp_path / "gt.tum").write_text("".join(tum))  # (camera -> world: the conjugate, xyzw)
+    for relation in ("translation_part", "rotation_angle_deg"):
+        assert main(["eval", str(tmp_path / "gt.tum"), str(tmp_path / "images.txt"), "-r", relation]) == 0
+        captured = capsys.readouterr()
+        assert float(captured.out.split("max")[1].split()[0]) < 1e-9
+        assert "images.txt: poses changed from world -> camera" in captured.err and "c2w = inv(w2c)" in captured.err
+    assert main(["eval", str(tmp_path / "images.txt"), str(tmp_path / "images.txt")]) == 0  # (both sides)
+
+
 def test_malformed_file_is_file_and_line(pair, tmp_path):
     ref, _ = pair
     bad = tmp_path / "bad.tum"

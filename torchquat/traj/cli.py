@@ -17,7 +17,8 @@ _UNITS = {"translation_part": "m", "point_distance": "m", "rotation_angle_rad": 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``torchquat eval``."""
     from .metrics import RELATIONS
-    parser.add_argument("reference", metavar="REFERENCE", help="ground-truth pose file (TUM, KITTI, EuRoC, CSV, NPZ)")
+    parser.add_argument("reference", metavar="REFERENCE", help="ground-truth pose file (TUM, KITTI, EuRoC, CSV, NPZ, "
+                        "COLMAP, NeRF, BOP: camera poses are taken as the camera's pose in the world)")
     parser.add_argument("estimate", metavar="ESTIMATE", help="estimated pose file, any format the readers know")
     parser.add_argument("--metric", choices=("ape", "rpe"), default="ape", help="absolute or relative pose error "
                         "(default ape)")
@@ -50,6 +51,21 @@ def _float64(poses):
     return poses.to(poses.representation, degrees=poses.degrees, dtype=torch.float64)
 
 
+def _in_world(path: str, poses):
+    """The poses as the camera's (or body's) pose in the world, as ``convert`` writes them to TUM:
+    COLMAP's world -> camera and BOP's model -> camera poses are inverted (the world frame is
+    neither moved nor rescaled), and what was changed is said on stderr."""
+    from ..io import Report, to_convention
+    report = Report()
+    poses = to_convention(poses, "tum", report)
+    prefix = "tum output: "
+    for note in report.notes:
+        note = note[len(prefix):] if note.startswith(prefix) else note
+        note = note.replace("tum's world frame", "the evaluation's world frame").replace("are written in", "stay in")
+        print(f"torchquat eval: {path}: {note}", file=sys.stderr)
+    return poses
+
+
 def _has_times(path: str, poses) -> bool:
     """KITTI files get the row index as their time: those, and files without times, go by index."""
     from ..io import detect_format
@@ -73,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
         except ImportError:
             return _fail("--plot needs matplotlib: pip install 'torchquat[plot]'")
     try:
-        reference, estimate = (_float64(read_poses(path)) for path in (args.reference, args.estimate))
+        reference, estimate = (_float64(_in_world(path, read_poses(path))) for path in (args.reference, args.estimate))
         if reference.positions is None or estimate.positions is None:
             missing = args.reference if reference.positions is None else args.estimate
             return _fail(f"{missing}: the file holds rotations only, no positions to evaluate")
