@@ -153,6 +153,44 @@ def test_plan_relative_paths_and_names(shards, tmp_path):
     assert is_many_files([str(shards)], "x.tum") and not is_many_files([str(shards / "seq0" / "part0.txt")], "x.tum")
 
 
+def _camera_inputs(root: Path) -> Path:
+    """A COLMAP model (with its cameras.txt and points3D.txt), a BOP scene (with scene_camera.json),
+    a NeRF transforms_train.json and a TUM file, under root."""
+    import json
+    (root / "model" / "sparse").mkdir(parents=True)
+    (root / "model" / "sparse" / "images.txt").write_text("1 1 0 0 0 1 2 3 1 a.png\n\n2 0.6 0 0.8 0 1 2 4 3 b.png\n\n")
+    (root / "model" / "sparse" / "cameras.txt").write_text("1 PINHOLE 640 480 500 500 320 240\n")
+    (root / "model" / "sparse" / "points3D.txt").write_text("")
+    (root / "scene" / "000001").mkdir(parents=True)
+    gt = {"0": [{"cam_R_m2c": [1, 0, 0, 0, 1, 0, 0, 0, 1], "cam_t_m2c": [10, 20, 300], "obj_id": 5}],
+          "3": [{"cam_R_m2c": [0, -1, 0, 1, 0, 0, 0, 0, 1], "cam_t_m2c": [1, 2, 3], "obj_id": 2}]}
+    (root / "scene" / "000001" / "scene_gt.json").write_text(json.dumps(gt))
+    camera = {"0": {"cam_K": [1, 0, 0, 0, 1, 0, 0, 0, 1]}}
+    (root / "scene" / "000001" / "scene_camera.json").write_text(json.dumps(camera))
+    (root / "nerf").mkdir()
+    frame = {"file_path": "./r_0", "transform_matrix": [[1, 0, 0, 1], [0, 1, 0, 2], [0, 0, 1, 3], [0, 0, 0, 1]]}
+    (root / "nerf" / "transforms_train.json").write_text(json.dumps({"camera_angle_x": 0.7, "frames": [frame]}))
+    (root / "traj.tum").write_text("0 1 2 3 0 0 0 1\n1 1 2 4 0 0 0 1\n")
+    return root
+
+
+@pytest.mark.parametrize("to, name", [("colmap", "images.txt"), ("nerf", "transforms.json"), ("bop", "scene_gt.json")])
+def test_camera_formats_get_their_file_names_in_mirrored_folders(tmp_path, to, name):
+    from torchquat.io import read_poses
+    root = _camera_inputs(tmp_path / "in")
+    out = tmp_path / "out"
+    assert main(["convert", str(root), f"{out}/", "--to", to, "--workers", "1"]) == 0
+    # (a folder's images.bin, transforms*.json, scene_gt*.json are taken, not cameras.txt or scene_camera.json;
+    # an input named as a camera format's file keeps its folder, any other gets a folder of its own name)
+    assert _outputs(out) == [f"model/sparse/{name}", f"nerf/transforms_train/{name}", f"scene/000001/{name}",
+                             f"traj/{name}"]
+    for k, (src, dst) in enumerate(plan_files([root], out, to=to)):  # (each as the one-file conversion writes it)
+        one = tmp_path / "one" / str(k) / name
+        one.parent.mkdir(parents=True)
+        convert_file(src, one, to=to)
+        assert Path(dst).read_bytes() == one.read_bytes() and len(read_poses(dst)) == len(read_poses(src))
+
+
 def test_argument_errors(shards, tmp_path, capsys):
     with pytest.raises(ValueError, match="workers must be a positive integer"):
         convert_files([shards], tmp_path / "out", workers=0)

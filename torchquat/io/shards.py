@@ -2,13 +2,16 @@
 
 Each input becomes one output at the same relative path under ``out_dir``, with the extension of
 the format ``to`` names (``tum`` -> ``.tum``, ``kitti`` -> ``.kitti``, ``euroc`` -> ``.csv``,
-``bvh`` -> ``.bvh``) or, where ``to`` names a rotation representation (or is None), of ``ext``
-(``.npz`` by default, ``.csv`` or ``.parquet``). Every file goes through the one-file conversion
-(:func:`~torchquat.io.convert_file`, or :func:`~torchquat.io.convert_motion` for motion capture),
-so each output equals the one-file conversion of its input; outputs are written atomically, and
-an output already there and newer than its input is skipped unless ``overwrite``, so a second run
-resumes an interrupted one. The files are converted in parallel on Dask's distributed scheduler
-(:mod:`torchquat.dask`): a local cluster of ``workers`` processes, or the cluster at ``scheduler``.
+``bvh`` -> ``.bvh``; a camera format gets its own file name, ``colmap`` -> ``images.txt``, ``nerf`` ->
+``transforms.json``, ``bop`` -> ``scene_gt.json``, in the input's sub-folder, or in a sub-folder named
+after the input where its name is not that format's own) or, where ``to`` names a rotation
+representation (or is None), of ``ext`` (``.npz`` by default, ``.csv`` or ``.parquet``). Every
+file goes through the one-file conversion (:func:`~torchquat.io.convert_file`, or
+:func:`~torchquat.io.convert_motion` for motion capture), so each output equals the one-file
+conversion of its input; outputs are written atomically, and an output already there and newer
+than its input is skipped unless ``overwrite``, so a second run resumes an interrupted one. The
+files are converted in parallel on Dask's distributed scheduler (:mod:`torchquat.dask`): a local
+cluster of ``workers`` processes, or the cluster at ``scheduler``.
 """
 
 import glob
@@ -19,18 +22,22 @@ from typing import Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
+from .cameras import camera_format_of
 from .checks import Report
 from .poses import PoseFileError
 from .streaming import DEFAULT_CHUNK_SIZE
 
 __all__ = ["convert_files", "convert_one", "plan_files", "FileResult", "ConvertSummary", "FORMAT_EXTENSIONS",
-           "PLAIN_EXTENSIONS", "INPUT_EXTENSIONS", "is_many_files"]
+           "CAMERA_FILE_NAMES", "PLAIN_EXTENSIONS", "INPUT_EXTENSIONS", "is_many_files"]
 
 PathLike = Union[str, os.PathLike]
 FORMAT_EXTENSIONS = {"tum": ".tum", "kitti": ".kitti", "euroc": ".csv", "bvh": ".bvh"}
 PLAIN_EXTENSIONS = (".npz", ".csv", ".parquet")
-# what a folder given as input contributes (files named on their own or by a glob are all taken)
+CAMERA_FILE_NAMES = {"colmap": "images.txt", "nerf": "transforms.json", "bop": "scene_gt.json"}
+# what a folder given as input contributes (files named on their own or by a glob are all taken), and
+# its .json/.bin files whose name gives a camera format (images.bin, transforms*.json, scene_gt*.json)
 INPUT_EXTENSIONS = (".txt", ".tum", ".kitti", ".csv", ".npz", ".npy", ".parquet", ".bvh")
+_COLMAP_OTHERS = ("cameras.txt", "points3d.txt", "frames.txt", "rigs.txt")  # (beside images.txt: not poses)
 _GLOB_MAGIC = ("*", "?", "[")
 
 
@@ -109,6 +116,8 @@ def is_many_files(inputs: Sequence[PathLike], output: PathLike) -> bool:
 
 
 def _output_extension(to: Optional[str], ext: str) -> str:
+    if to in CAMERA_FILE_NAMES:
+        return CAMERA_FILE_NAMES[to]
     if to in FORMAT_EXTENSIONS:
         return FORMAT_EXTENSIONS[to]
     if to is not None:
@@ -116,7 +125,7 @@ def _output_extension(to: Optional[str], ext: str) -> str:
         try:
             parse_token(to, "convert_files: to")
         except ValueError as err:
-            raise ValueError(f"{err}; or a format: {', '.join(FORMAT_EXTENSIONS)}") from None
+            raise ValueError(f"{err}; or a format: {', '.join([*FORMAT_EXTENSIONS, *CAMERA_FILE_NAMES])}") from None
     chosen = ext if ext.startswith(".") else f".{ext}"
     if chosen.lower() not in PLAIN_EXTENSIONS:
         raise ValueError(f"convert_files: ext must be one of {', '.join(PLAIN_EXTENSIONS)} for plain outputs, "
@@ -129,9 +138,21 @@ def _walk(folder: str, out_dir: str) -> List[str]:
     skip = os.path.abspath(out_dir)
     for root, dirs, files in os.walk(folder):
         dirs[:] = sorted(d for d in dirs if not d.startswith(".") and os.path.abspath(os.path.join(root, d)) != skip)
+        model = any(f.lower() in ("images.txt", "images.bin") for f in files)  # (a COLMAP model's folder)
         found.extend(os.path.join(root, f) for f in sorted(files)
-                     if not f.startswith(".") and os.path.splitext(f)[1].lower() in INPUT_EXTENSIONS)
+                     if not f.startswith(".") and not (model and f.lower() in _COLMAP_OTHERS)
+                     and (os.path.splitext(f)[1].lower() in INPUT_EXTENSIONS or camera_format_of(f) is not None))
     return found
+
+
+def _output_path(rel: str, suffix: str) -> str:
+    """Where the input at ``rel`` goes: its extension changed to ``suffix``, or for a camera format's
+    file name (``images.txt``), that name in the input's folder when the input's own name is a
+    camera format's (``scene_gt.json``), else in a folder named after the input."""
+    if suffix.startswith("."):
+        return os.path.splitext(rel)[0] + suffix
+    own = os.path.basename(rel).lower() in ("images.txt", "images.bin", *CAMERA_FILE_NAMES.values())
+    return os.path.join(os.path.dirname(rel) if own else os.path.splitext(rel)[0], suffix)
 
 
 def plan_files(inputs: Sequence[PathLike], out_dir: PathLike, to: Optional[str] = None,
@@ -142,7 +163,8 @@ def plan_files(inputs: Sequence[PathLike], out_dir: PathLike, to: Optional[str] 
         inputs: files, folders (their pose files, recursively; hidden ones skipped) and glob
             patterns (``**`` recursive).
         out_dir: the output folder.
-        to: a format (``tum``, ``kitti``, ``euroc``, ``bvh``) or a rotation representation.
+        to: a format (``tum``, ``kitti``, ``euroc``, ``bvh``, ``colmap``, ``nerf``, ``bop``) or a
+            rotation representation.
         ext: the extension of plain outputs: ``.npz``, ``.csv`` or ``.parquet``.
 
     Returns:
@@ -187,7 +209,7 @@ def plan_files(inputs: Sequence[PathLike], out_dir: PathLike, to: Optional[str] 
     planned: List[Tuple[str, str]] = []
     taken: Dict[str, str] = {}
     for src, rel in pairs:
-        dst = os.path.join(out_dir, os.path.splitext(rel)[0] + suffix)
+        dst = os.path.join(out_dir, _output_path(rel, suffix))
         if dst in taken and taken[dst] != src:
             raise ValueError(f"convert_files: {taken[dst]} and {src} would both be written to {dst}: "
                              "convert them in separate runs")
@@ -285,8 +307,9 @@ def convert_files(inputs: Sequence[PathLike], out_dir: PathLike, to: Optional[st
     Args:
         inputs: files, folders and glob patterns (see :func:`plan_files`).
         out_dir: the output folder (made if missing).
-        to: a format (``tum``, ``kitti``, ``euroc``, ``bvh``) or a rotation representation for plain
-            outputs (``quat``, ``euler:ZYX``, ...); None: plain outputs holding quaternions.
+        to: a format (``tum``, ``kitti``, ``euroc``, ``bvh``, ``colmap``, ``nerf``, ``bop``) or a rotation
+            representation for plain outputs (``quat``, ``euler:ZYX``, ...); None: plain outputs
+            holding quaternions.
         workers: processes of a local cluster; None: the cores, but no cluster at all when there
             is one file to convert or one core. ``1`` converts here, in this process.
         scheduler: the address of an existing Dask scheduler (``tcp://host:8786``); its workers

@@ -69,7 +69,8 @@ def run_many(args: argparse.Namespace) -> int:
         return _fail(str(err))
     if total == 0:
         return _fail(f"no pose files in {', '.join(args.input)} (a folder contributes its {', '.join(INPUT_EXTENSIONS)} "
-                     "files; name other files one by one or by a glob pattern)")
+                     "files and its images.bin, transforms*.json, scene_gt*.json; name other files one by one or "
+                     "by a glob pattern)")
     bar = _bar(total)
     first_notes = []
 
