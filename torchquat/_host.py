@@ -55,9 +55,9 @@ class _HostGradient(torch.autograd.Function):
         grads = None
         if not torch.is_grad_enabled():
             arrays = isinstance(ctx.values[0], numpy.ndarray)  # (NumPy rows, or floats for one row)
-            grads = (_column_gradients if arrays else _row_gradients)(ctx, grad)
+            grads = (_column_gradients if arrays else _row_gradients)(ctx, grad, [x.requires_grad for x in inputs])
             if grads is not None:
-                grads = [g.view(x.shape) if x.requires_grad else None for g, x in zip(grads, inputs)]
+                grads = [g.view(x.shape) if g is not None else None for g, x in zip(grads, inputs)]
         if grads is None:
             inputs = [x.view_as(x) for x in inputs]  # (each slot its own node: the same tensor may fill two)
             wanted = [x for x in inputs if x.requires_grad]
@@ -76,17 +76,19 @@ def _split(flat, widths):
         start += width
 
 
-def _row_gradients(ctx, grad: Tensor):
+def _row_gradients(ctx, grad: Tensor, wanted):
     try:
         flat = vjp_function(ctx.formula, len(ctx.values), ctx.static)(*ctx.values, *grad.reshape(-1).tolist())
     except _FLOAT_FAILURES:
         return None
     if not all(map(math.isfinite, flat)):
         return None
-    return [torch.tensor(part, dtype=grad.dtype) for part in _split(flat, ctx.widths)]
+    dtype = _NUMPY_DTYPES[grad.dtype]
+    return [torch.from_numpy(numpy.array(part, dtype=dtype)) if want else None
+            for part, want in zip(_split(flat, ctx.widths), wanted)]
 
 
-def _column_gradients(ctx, grad: Tensor):
+def _column_gradients(ctx, grad: Tensor, wanted):
     n_values = sum(ctx.widths)
     vjp = vjp_function(ctx.formula, n_values, ctx.static, arrays=True)
     rows = max(a.shape[0] for a in ctx.values)
@@ -99,9 +101,12 @@ def _column_gradients(ctx, grad: Tensor):
     if not numpy.isfinite(out).all():
         return None
     grads, first = [], 0
-    for a, width in zip(ctx.values, ctx.widths):
+    for a, width, want in zip(ctx.values, ctx.widths, wanted):
         block = out[:, first:first + width]
         first += width
+        if not want:
+            grads.append(None)
+            continue
         if a.shape[0] == 1 and rows > 1:  # (one row broadcast over the batch: its gradient sums)
             block = block.sum(0, keepdims=True, dtype=g.dtype)
         grads.append(torch.from_numpy(numpy.ascontiguousarray(block)))
