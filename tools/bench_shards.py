@@ -7,7 +7,7 @@
 2. Memory per worker, flat in the file size: a local cluster of 2 processes converts shards of
    ``rows`` and of ``4 * rows`` poses; each worker's peak RSS (VmHWM) is read after each run.
 3. One file, one process: ``rows`` KITTI poses to TUM with ``torchquat convert`` (wall time, peak
-   RSS from ``/usr/bin/time``-like ``resource.getrusage`` of the child) against evo
+   RSS of the child from GNU time) against evo
    (``read_kitti_poses_file``, ``orientations_quat_wxyz``, ``numpy.savetxt``).
 
 The shards are KITTI_00_gt.txt (../shared/data) tiled to the size asked for.
@@ -15,7 +15,6 @@ The shards are KITTI_00_gt.txt (../shared/data) tiled to the size asked for.
 
 import argparse
 import os
-import resource
 import subprocess
 import sys
 import tempfile
@@ -31,15 +30,19 @@ def tiled(path: Path, rows: int) -> None:
 
 
 def run(command, **kwargs):
-    """Wall time and peak RSS (MB) of a child process."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    """Wall time and peak RSS (MB) of a child process. The RSS comes from GNU time where there is
+    one: a child's own ``ru_maxrss`` starts from this process's pages at the fork."""
+    timed = ["/usr/bin/time", "-f", "peak-rss-kb %M"] + list(command) if os.path.exists("/usr/bin/time") else command
     start = time.perf_counter()
-    done = subprocess.run(command, capture_output=True, text=True, **kwargs)
+    child = subprocess.Popen(timed, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, **kwargs)
+    stderr = child.stderr.read()
+    _, status, usage = os.wait4(child.pid, 0)
     wall = time.perf_counter() - start
-    if done.returncode != 0:
-        raise SystemExit(f"{' '.join(map(str, command))} failed:\n{done.stderr}")
-    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    return wall, max(peak, before) / 1024, done.stderr
+    if os.waitstatus_to_exitcode(status) != 0:
+        raise SystemExit(f"{' '.join(map(str, command))} failed:\n{stderr}")
+    reported = [line for line in stderr.splitlines() if line.startswith("peak-rss-kb ")]
+    peak_kb = int(reported[-1].split()[1]) if reported else usage.ru_maxrss
+    return wall, peak_kb / 1024, "\n".join(line for line in stderr.splitlines() if not line.startswith("peak-rss-kb "))
 
 
 def shards(folder: Path, count: int, rows: int) -> Path:
@@ -69,7 +72,7 @@ def speedup(root: Path, count: int, rows: int) -> None:
 def worker_memory(root: Path, rows: int) -> None:
     import distributed
 
-    from torchquat.dask import local_cluster
+    from torchquat.io.cluster import local_cluster
     from torchquat.io import convert_files
 
     def peak_kb():
