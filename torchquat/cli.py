@@ -38,7 +38,7 @@ _CONVERT_EPILOG = """formats (from the extension, or --from / --to):
   npz    .npz   arrays timestamp, position, rotation and a string representation
   npy    .npy   the rotation array alone
   bvh    .bvh   motion capture (HIERARCHY + MOTION): in, and out from any motion (--to bvh)
-  amass  .npz   AMASS poses (T, 3J) axis-angle, trans, mocap_frame[_]rate; a motion in .npz/.npy
+  amass  .npz   AMASS poses (T, 3J) axis-angle, trans, mocap_frame[_]rate; a motion in .npz/.parquet/.npy
                 holds (T, J, k) rotations (--to rot6d ...) with joint names, parents, offsets
   colmap images.txt, images.bin  COLMAP model: world -> camera, QW QX QY QZ TX TY TZ, OpenCV axes
   nerf   transforms.json  frames[].transform_matrix: camera -> world, OpenGL axes (other fields kept)

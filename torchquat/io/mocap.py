@@ -5,7 +5,8 @@ A motion ``.npz`` holds ``rotation`` ``(T, J, *k)`` in ``representation`` (``deg
 ``joint_names``, ``parents``, ``offsets`` ``(J, 3)``, ``channels`` (space-separated, one string a
 joint), ``end_sites`` ``(J, 3)`` (NaN where none), ``root_position`` ``(T, 3)``, ``frame_time``,
 ``timestamp`` ``(T,)``, ``translations`` ``(T, J, 3)`` when joints other than the root move, and
-the source's other arrays (AMASS ``betas``, ...) under their own names.
+the source's other arrays (AMASS ``betas``, ...) under their own names. A motion ``.parquet``
+(one row per frame, the skeleton in the schema's metadata) is :mod:`torchquat.io.mocap_parquet`'s.
 """
 
 import os
@@ -15,6 +16,7 @@ from typing import Optional
 import numpy as np
 import torch
 
+from .mocap_parquet import is_motion_parquet, read_motion_parquet, write_motion_parquet
 from .motion import Motion, Skeleton
 from .poses import PoseFileError
 
@@ -35,11 +37,12 @@ def _npz_keys(path) -> Optional[set]:
 
 
 def motion_format(path, format: Optional[str] = None) -> Optional[str]:
-    """``"bvh"``, ``"amass"`` or ``"motion"`` (a motion ``.npz``) for a motion file, else None.
+    """``"bvh"``, ``"amass"`` or ``"motion"`` (a motion ``.npz`` or ``.parquet``) for a motion file, else None.
 
-    Found from ``format`` (``bvh``, ``amass``; ``npz`` when the archive is a motion's), the
+    Found from ``format`` (``bvh``, ``amass``; ``npz`` or ``parquet`` when the file is a motion's), the
     extension (``.bvh``) or the content: a file whose first word is ``HIERARCHY`` is BVH, an
-    ``.npz`` with ``poses`` is AMASS, one with ``joint_names`` and ``parents`` a motion.
+    ``.npz`` with ``poses`` is AMASS, one with ``joint_names`` and ``parents`` a motion, and a
+    Parquet file whose schema metadata has ``torchquat.motion`` a motion.
 
     Example:
         >>> motion_format("walk.bvh"), motion_format("walk.tum")
@@ -47,11 +50,13 @@ def motion_format(path, format: Optional[str] = None) -> Optional[str]:
     """
     if format in MOTION_FORMATS or format == "motion":
         return format
-    if format not in (None, "npz"):
+    if format not in (None, "npz", "parquet"):
         return None
     suffix = Path(path).suffix.lower()
     if suffix == ".bvh":
         return "bvh"
+    if suffix == ".parquet" or format == "parquet" or _is_parquet(path):
+        return "motion" if is_motion_parquet(path) else None
     if suffix == ".npz" or format == "npz":
         keys = _npz_keys(path) if os.path.isfile(path) else None
         if keys and "poses" in keys:
@@ -65,6 +70,18 @@ def motion_format(path, format: Optional[str] = None) -> Optional[str]:
     except OSError:
         return None
     return "bvh" if head.lstrip(b"\xef\xbb\xbf \t\r\n").startswith(b"HIERARCHY") else None
+
+
+def _is_parquet(path) -> bool:
+    try:
+        with open(path, "rb") as stream:
+            return stream.read(4) == b"PAR1"
+    except OSError:
+        return False
+
+
+def _read_motion_file(path) -> Motion:
+    return read_motion_parquet(path) if _is_parquet(path) else _read_motion_npz(path)
 
 
 def _read_motion_npz(path) -> Motion:
@@ -91,7 +108,7 @@ def _read_motion_npz(path) -> Motion:
 
 
 def read_motion(path, format: Optional[str] = None) -> Motion:
-    """Read any motion file: BVH, AMASS ``.npz`` or a motion ``.npz`` written by torchquat.
+    """Read any motion file: BVH, AMASS ``.npz`` or a motion ``.npz``/``.parquet`` written by torchquat.
 
     Args:
         path: the file.
@@ -105,8 +122,9 @@ def read_motion(path, format: Optional[str] = None) -> Motion:
     found = motion_format(path, format)
     if found is None:
         raise PoseFileError(path, "not a motion file: expected BVH (.bvh, or a file starting with HIERARCHY), "
-                            "an AMASS .npz (with 'poses') or a motion .npz (with 'joint_names' and 'parents')")
-    return {"bvh": read_bvh, "amass": read_amass, "motion": _read_motion_npz}[found](path)
+                            "an AMASS .npz (with 'poses'), a motion .npz (with 'joint_names' and 'parents') "
+                            "or a motion .parquet (written by torchquat)")
+    return {"bvh": read_bvh, "amass": read_amass, "motion": _read_motion_file}[found](path)
 
 
 def _motion_arrays(motion: Motion, dtype) -> dict:
@@ -128,12 +146,13 @@ def _motion_arrays(motion: Motion, dtype) -> dict:
 
 def write_motion(path, motion: Motion, representation: Optional[str] = None, degrees: bool = False,
                  order: Optional[str] = None, dtype=np.float64) -> int:
-    """Write a motion to ``.bvh``, ``.npz`` (everything, see the module) or ``.npy`` (rotations alone).
+    """Write a motion to ``.bvh``, ``.npz`` (everything, see the module), ``.parquet`` (everything, one row
+    per frame: :func:`~torchquat.io.mocap_parquet.write_motion_parquet`) or ``.npy`` (rotations alone).
 
     Args:
         path: the output file, written atomically; its extension picks the format.
         motion: the :class:`Motion`.
-        representation: rotations in ``.npz``/``.npy`` (default: the motion's own).
+        representation: rotations in ``.npz``/``.parquet``/``.npy`` (default: the motion's own).
         degrees: Euler angles in degrees.
         order: BVH only: one rotation order for every joint (see :func:`write_bvh`).
         dtype: ``numpy.float64`` or ``numpy.float32`` values.
@@ -146,10 +165,13 @@ def write_motion(path, motion: Motion, representation: Optional[str] = None, deg
     suffix = Path(path).suffix.lower()
     if suffix == ".bvh":
         return write_bvh(path, motion, order=order, dtype=dtype)
-    if suffix not in (".npz", ".npy"):
-        raise PoseFileError(path, f"a motion is written as .bvh, .npz or .npy, not {suffix or '(no extension)'!r}")
+    if suffix not in (".npz", ".npy", ".parquet"):
+        raise PoseFileError(path, f"a motion is written as .bvh, .npz, .npy or .parquet, "
+                            f"not {suffix or '(no extension)'!r}")
     if representation is not None:
         motion = motion.to(representation, degrees=degrees)
+    if suffix == ".parquet":
+        return write_motion_parquet(path, motion, dtype=dtype)
     with atomic_output(path) as stream:
         if suffix == ".npy":
             np.save(stream, motion.rotations.detach().cpu().numpy().astype(dtype))
@@ -166,13 +188,14 @@ def is_motion_conversion(src, dst, to: Optional[str] = None, from_format: Option
 
 def convert_motion(src, dst, to: Optional[str] = None, from_format: Optional[str] = None, degrees: bool = False,
                    dtype=np.float64, report=None) -> int:
-    """Convert a motion file: BVH, AMASS or motion ``.npz`` in; ``.npz``, ``.npy`` or BVH out.
+    """Convert a motion file: BVH, AMASS or motion ``.npz``/``.parquet`` in; ``.npz``, ``.parquet``, ``.npy`` or
+    BVH out.
 
     Args:
         src: the input file.
         dst: the output file (atomically written; untouched on any error).
-        to: ``bvh``, or for ``.npz``/``.npy`` a representation (``rot6d``, ``quat``, ``euler:ZXY``, ...;
-            default ``quat``); ``(T, J, k)`` rotations with the joint names.
+        to: ``bvh``, or for ``.npz``/``.parquet``/``.npy`` a representation (``rot6d``, ``quat``,
+            ``euler:ZXY``, ...; default ``quat``); ``(T, J, k)`` rotations with the joint names.
         from_format: ``bvh`` or ``amass`` when the input's extension and content do not tell.
         degrees: Euler angles in degrees.
         dtype: ``numpy.float64`` or ``numpy.float32`` values.
@@ -195,7 +218,8 @@ def convert_motion(src, dst, to: Optional[str] = None, from_format: Optional[str
     representation = None if suffix == ".bvh" else (to or "quat")
     motion = read_motion(src, found)
     if report is not None:
-        what = "BVH" if suffix == ".bvh" else f"{suffix[1:]} with rotations (T, J, k) as {representation}"
+        what = {".bvh": "BVH", ".parquet": f"parquet, one row per frame, rotations as {representation}"}.get(
+            suffix, f"{suffix[1:]} with rotations (T, J, k) as {representation}")
         report.note(f"reading {src} as {found} ({motion.num_frames} frames, {len(motion.skeleton)} joints); "
                     f"writing {dst} as {what}" + (" in degrees" if degrees and "euler" in (to or "") else ""))
     try:
