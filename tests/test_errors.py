@@ -160,16 +160,16 @@ def test_eps_out_of_range_is_refused_naming_the_function(fn):
 
 
 def test_distinct_eps_values_do_not_grow_any_cache():
-    from torchquat import _dispatch, _reverse
+    from torchquat import _codegen, _dispatch
 
     q = tq.random_quat(5, generator=torch.Generator().manual_seed(0))
     tq.quat_to_euler(q, "ZYX"), tq.quat_to_euler(q, "ZYX", eps=1e-3)
-    before = len(_dispatch._compiled), len(_reverse._CACHE)
+    before = len(_dispatch._compiled), len(_codegen._CACHE)
     for k in range(200):
         tq.quat_to_euler(q, "ZYX", eps=1e-4 * (k + 1))
         tq.quat_to_euler(q[0], "ZYX", eps=1e-4 * (k + 1))
         tq.euler_gimbal_lock(q, "ZYX", eps=1e-4 * (k + 1))
-    assert (len(_dispatch._compiled), len(_reverse._CACHE)) == before
+    assert (len(_dispatch._compiled), len(_codegen._CACHE)) == before
 
 
 def test_list_and_numpy_inputs_whose_shape_decides_the_form():

@@ -99,7 +99,7 @@ def test_second_derivatives_of_one_rotation_are_autograds_of_the_eager_formula(n
 @pytest.mark.parametrize("name", sorted(ALL))
 def test_the_generated_reverse_mode_equals_autograd_of_the_tensor_formula(name, rows):
     # One row (floats) and CPU batches (NumPy columns) get their gradient from the reverse mode that
-    # torchquat._reverse writes out from the formula; torch.func.vjp runs the tensor formula under
+    # torchquat._codegen writes out from the formula; torch.func.vjp runs the tensor formula under
     # autograd instead (its wrapped tensors take that path)
     fn, generic, singular = ALL[name]
     for make in (generic, singular):

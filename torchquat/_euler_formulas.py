@@ -76,7 +76,11 @@ def _form_terms(name: str):
                     for sign, index in OUTER[(min(u, v), max(u, v))]:
                         total[index] = total.get(index, 0) + weight * cu * cv * sign
         terms[form] = {index: c for index, c in total.items() if c != 0}
-    return terms
+    # a power of two common to every coefficient is dropped: the angles are ratios, and the lock test
+    # compares two of the forms, so results are the same to the bit, with fewer products
+    common = math.gcd(*(int(c) for form in terms.values() for c in form.values()))
+    common &= -common
+    return {name: {index: c // common for index, c in form.items()} for name, form in terms.items()}
 
 
 # (tables built once at import, read as plain dicts: torch.compile traces through them as constants)
@@ -94,18 +98,18 @@ def forms_of_matrix(name: str, r):
     return {form: _combine(coefficients, values) for form, coefficients in _MATRIX_FORMS[name].items()}
 
 
-def angles(m, f, name: str, eps: float, degrees: bool):
+def angles(m, f, name: str, lock_sine: float, degrees: bool):
     """Euler angles from the forms ``f`` (:func:`forms_of_quat` or :func:`forms_of_matrix`).
 
-    Gimbal lock (middle angle within ``eps`` of 0 or pi) is ``sin(middle) <= sin(eps)``, tested as
-    ``2 h <= sin(eps) (|ab|^2 + |cd|^2)`` with ``h = |ab| |cd|``: no cancellation near the lock, so
+    Gimbal lock (middle angle within ``eps`` of 0 or pi) is ``sin(middle) <= lock_sine = sin(eps)``,
+    tested as ``2 h <= lock_sine (|ab|^2 + |cd|^2)`` with ``h = |ab| |cd|``: no cancellation near the lock, so
     an exact lock is found in float32 too. There, as in SciPy, the third angle is 0 and the first
     carries the rotation. Elsewhere the third angle is formed from the well-conditioned double
     angle (``2 atan2(b, a)`` near 0, ``2 atan2(d, c)`` near pi) and the first, so the angles
     reproduce the rotation to rounding right up to the lock."""
     conv = EULER_CONVENTIONS[name]
     sign = 1 if conv.symmetric else permutation(name)[1]
-    ab2, cd2, y1, x1, h2, lock = _lock_test(m, f, eps)
+    ab2, cd2, y1, x1, h2, lock = _lock_test(m, f, lock_sine)
     near0, nearpi = ab2 >= cd2, ab2 < cd2
     z = ab2 - cd2
     middle = m.atan2(h2, z) if conv.symmetric else m.atan2(-z, h2)
@@ -119,30 +123,30 @@ def angles(m, f, name: str, eps: float, degrees: bool):
         out = (m.where(lock, at_lock, t3) * float(sign), middle, m.where(lock, 0.0, t1))
     else:
         out = (m.where(lock, at_lock, t1), middle, m.where(lock, 0.0, t3) * float(sign))
-    scale = (180.0 / math.pi if degrees else 1.0) * (ab2 + cd2) / (ab2 + cd2)  # (NaN for a zero quaternion)
-    return tuple(angle * scale + 0.0 for angle in out)  # (+ 0.0: no -0.0 angles)
+    undefined = m.where(ab2 + cd2 > 0.0, 0.0, math.nan)  # (NaN for a zero quaternion; adding +0.0 leaves no -0.0)
+    return tuple((angle * (180.0 / math.pi) if degrees else angle) + undefined for angle in out)
 
 
-def _lock_test(m, f, eps: float):
+def _lock_test(m, f, lock_sine: float):
     """``|ab|^2``, ``|cd|^2``, ``t1``'s pair, ``2 h`` and the lock mask. ``h = |ab| |cd|`` is the norm
     of ``t1``'s pair: off-diagonal forms, small near the lock with small errors (from R, the
     product ``|ab|^2 |cd|^2`` carries the absolute rounding of ``1 + r00 + ...``: sqrt(eps) in h)."""
     ab2, cd2, y1, x1 = f["ab2"], f["cd2"], f["y1"], f["x1"]
     h2 = safe_sqrt(m, y1 * y1 + x1 * x1) * 2.0
-    return ab2, cd2, y1, x1, h2, h2 <= math.sin(eps) * (ab2 + cd2)
+    return ab2, cd2, y1, x1, h2, h2 <= lock_sine * (ab2 + cd2)
 
 
-def lock(m, f, eps: float):
+def lock(m, f, lock_sine: float):
     """The gimbal-lock test of :func:`angles` alone."""
-    return _lock_test(m, f, eps)[-1]
+    return _lock_test(m, f, lock_sine)[-1]
 
 
-def quat_to_euler(m, w, x, y, z, name: str, eps: float, degrees: bool):
-    return angles(m, forms_of_quat(name, (w, x, y, z)), name, eps, degrees)
+def quat_to_euler(m, w, x, y, z, name: str, lock_sine: float, degrees: bool):
+    return angles(m, forms_of_quat(name, (w, x, y, z)), name, lock_sine, degrees)
 
 
-def matrix_to_euler(m, *r, name: str, eps: float, degrees: bool):
-    return angles(m, forms_of_matrix(name, r), name, eps, degrees)
+def matrix_to_euler(m, *r, name: str, lock_sine: float, degrees: bool):
+    return angles(m, forms_of_matrix(name, r), name, lock_sine, degrees)
 
 
 # The Hamilton product's terms: output component -> (sign, i, j) for p_i q_j.

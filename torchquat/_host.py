@@ -2,10 +2,11 @@
 
 On the CPU every PyTorch operation costs its dispatch (2-5 us) whatever it computes: a formula of
 20-50 steps spends most of its time there up to thousands of rows, and autograd's backward adds a
-node a step. The same formula runs here on Python floats (0.05 us a step) for one rotation and on
-NumPy columns (about half of PyTorch's cost a step, in blocks that stay in cache) for a batch; its
-gradient is the generated reverse mode of :mod:`torchquat._reverse`, and one autograd node
-(:class:`_HostGradient`) hands it to autograd. Anything these paths do not take (a GPU tensor, a
+node a step. The same formula, written out as straight-line code by :mod:`torchquat._codegen`,
+runs here on Python floats (0.05 us a step) for one rotation and on NumPy columns (about half of
+PyTorch's cost a step, in blocks that stay in cache) for a batch; the forward keeps the values its
+generated reverse mode reads, and one autograd node (:class:`_HostGradient`) hands that reverse
+mode to autograd. Anything these paths do not take (a GPU tensor, a
 tensor subclass, a ``torch.func`` transform, a trace) returns ``None``, and the caller runs the
 tensor formula.
 """
@@ -17,8 +18,7 @@ import numpy
 import torch
 from torch import Tensor
 
-from ._backends import ARRAYS, FLOATS
-from ._reverse import vjp_function
+from ._codegen import generated
 
 _PLAIN = (Tensor, torch.nn.Parameter)  # (a subclass may change what tolist and numpy read)
 _NUMPY_DTYPES = {torch.float32: numpy.float32, torch.float64: numpy.float64}
@@ -38,14 +38,15 @@ def has_storage(x: Tensor) -> bool:
 
 
 class _HostGradient(torch.autograd.Function):
-    """A result of these paths, whose backward is the formula's generated vector-Jacobian product
-    on the same floats or columns. Where that is not finite, or the gradient is differentiated
-    again (``create_graph``), the backward runs ``fallback`` (the tensor formula) under autograd,
-    so higher derivatives are autograd's."""
+    """A result of these paths, whose backward is the formula's generated reverse mode on the
+    floats or columns its forward kept (``tape``: the function that runs it and what it reads).
+    Where that is not finite, or the gradient is differentiated again (``create_graph``), the
+    backward runs ``fallback`` (the tensor formula) under autograd, so higher derivatives are
+    autograd's."""
 
     @staticmethod
-    def forward(ctx, out: Tensor, values, widths, formula, static, fallback: Callable, *inputs):
-        ctx.values, ctx.widths, ctx.formula, ctx.static, ctx.fallback = values, widths, formula, static, fallback
+    def forward(ctx, out: Tensor, tape, fallback: Callable, *inputs):
+        ctx.tape, ctx.fallback = tape, fallback
         ctx.save_for_backward(*inputs)
         return out
 
@@ -54,10 +55,8 @@ class _HostGradient(torch.autograd.Function):
         inputs = ctx.saved_tensors
         grads = None
         if not torch.is_grad_enabled():
-            arrays = isinstance(ctx.values[0], numpy.ndarray)  # (NumPy rows, or floats for one row)
-            grads = (_column_gradients if arrays else _row_gradients)(ctx, grad, [x.requires_grad for x in inputs])
-            if grads is not None:
-                grads = [g.view(x.shape) if g is not None else None for g, x in zip(grads, inputs)]
+            gradients, tape = ctx.tape
+            grads = gradients(tape, grad, [x.requires_grad for x in inputs], [x.shape for x in inputs])
         if grads is None:
             inputs = [x.view_as(x) for x in inputs]  # (each slot its own node: the same tensor may fill two)
             wanted = [x for x in inputs if x.requires_grad]
@@ -66,51 +65,40 @@ class _HostGradient(torch.autograd.Function):
             found = iter(torch.autograd.grad(out, wanted, grad, create_graph=torch.is_grad_enabled(),
                                              allow_unused=True))
             grads = [next(found) if x.requires_grad else None for x in inputs]
-        return (None,) * 6 + tuple(grads)
+        return (None, None, None) + tuple(grads)
 
 
-def _split(flat, widths):
-    start = 0
-    for width in widths:
-        yield flat[start:start + width]
-        start += width
-
-
-def _row_gradients(ctx, grad: Tensor, wanted):
+def _row_gradients(tape, grad: Tensor, wanted, shapes):
+    code, parameters, values, saved, widths = tape
     try:
-        flat = vjp_function(ctx.formula, len(ctx.values), ctx.static)(*ctx.values, *grad.reshape(-1).tolist())
+        flat = code.backward(*values, *parameters, *saved, *grad.reshape(-1).tolist())
     except _FLOAT_FAILURES:
         return None
     if not all(map(math.isfinite, flat)):
         return None
-    dtype = _NUMPY_DTYPES[grad.dtype]
-    return [torch.from_numpy(numpy.array(part, dtype=dtype)) if want else None
-            for part, want in zip(_split(flat, ctx.widths), wanted)]
-
-
-def _column_gradients(ctx, grad: Tensor, wanted):
-    n_values = sum(ctx.widths)
-    vjp = vjp_function(ctx.formula, n_values, ctx.static, arrays=True)
-    rows = max(a.shape[0] for a in ctx.values)
-    g = grad.detach().reshape(rows, -1).numpy()
-    out = numpy.empty((rows, n_values), dtype=g.dtype)
-    with numpy.errstate(all="ignore"):
-        for start, stop, block in _blocks(ctx.values, rows):
-            for k, column in enumerate(vjp(*block, *g[start:stop].T.copy())):
-                out[start:stop, k] = column
-    if not numpy.isfinite(out).all():
-        return None
-    grads, first = [], 0
-    for a, width, want in zip(ctx.values, ctx.widths, wanted):
-        block = out[:, first:first + width]
-        first += width
-        if not want:
-            grads.append(None)
-            continue
-        if a.shape[0] == 1 and rows > 1:  # (one row broadcast over the batch: its gradient sums)
-            block = block.sum(0, keepdims=True, dtype=g.dtype)
-        grads.append(torch.from_numpy(numpy.ascontiguousarray(block)))
+    dtype, grads, start = _NUMPY_DTYPES[grad.dtype], [], 0
+    for width, want, shape in zip(widths, wanted, shapes):
+        grads.append(torch.from_numpy(numpy.array(flat[start:start + width], dtype=dtype).reshape(shape))
+                     if want else None)
+        start += width
     return grads
+
+
+def _column_gradients(tape, grad: Tensor, wanted, shapes):
+    code, parameters, blocks, widths, (rows, width) = tape
+    g = grad.numpy(force=True).reshape(rows, width)
+    grads = [numpy.empty((rows, width), dtype=g.dtype) for width in widths]
+    targets = [(array, j) for array in grads for j in range(array.shape[1])]
+    with numpy.errstate(all="ignore"):
+        for start, stop, block, saved in blocks:
+            gradients = g[start:stop].T.copy() if g.shape[1] > 1 else (g[start:stop, 0],)
+            for (array, j), column in zip(targets, code.backward(*block, *parameters, *saved, *gradients)):
+                array[start:stop, j] = column
+        # (one row broadcast over the batch: its gradient sums; an overflowing sum only falls back)
+        grads = [a.sum(0) if math.prod(shape) == width < a.size else a for a, width, shape in zip(grads, widths, shapes)]
+        if not all(numpy.isfinite(a.sum()) for a, want in zip(grads, wanted) if want):
+            return None
+    return [torch.from_numpy(a.reshape(shape)) if want else None for a, want, shape in zip(grads, wanted, shapes)]
 
 
 def _usable(inputs: Sequence[Tensor]) -> bool:
@@ -141,8 +129,9 @@ def one_row(formula, inputs: Sequence[Tensor], out_shape, row_dims: int, static,
     numpy_dtype = _NUMPY_DTYPES.get(inputs[0].dtype)
     if numpy_dtype is None:
         return None
+    code, parameters = generated(formula, len(values), static)
     try:
-        out = formula(FLOATS, *values, **static)
+        out, saved = code.forward(*values, *parameters)
     except _FLOAT_FAILURES:
         return None
     batch = inputs[0].shape[:-row_dims]
@@ -152,7 +141,8 @@ def one_row(formula, inputs: Sequence[Tensor], out_shape, row_dims: int, static,
     # (NumPy builds and shapes a small array faster than torch.tensor; each entry rounded once)
     result = torch.from_numpy(numpy.array(out, dtype=numpy_dtype).reshape(batch + out_shape))
     if grad and torch.is_grad_enabled():
-        return _HostGradient.apply(result, values, widths, formula, static, fallback, *inputs)
+        tape = (_row_gradients, (code, parameters, values, saved, widths))
+        return _HostGradient.apply(result, tape, fallback, *inputs)
     return result
 
 
@@ -170,8 +160,10 @@ def columns(formula, inputs: Sequence[Tensor], out_shape, row_dims: int, static,
     not apply. Each input has the batch shape, or is one row (broadcast)."""
     if not _usable(inputs):
         return None
-    batch, widths = None, [x.shape[-1] if row_dims == 1 else 9 for x in inputs]
-    for x, width in zip(inputs, widths):
+    batch, widths = None, []
+    for x in inputs:
+        width = x.shape[-1] if row_dims == 1 else 9
+        widths.append(width)
         if x.numel() != width:
             if batch is not None and x.shape[:-row_dims] != batch:
                 return None
@@ -179,14 +171,20 @@ def columns(formula, inputs: Sequence[Tensor], out_shape, row_dims: int, static,
     if batch is None:
         return None
     rows = math.prod(batch)
-    arrays = [x.detach().reshape(-1, width).numpy() for x, width in zip(inputs, widths)]
-    out = numpy.empty((rows, math.prod(out_shape)), dtype=_NUMPY_DTYPES[inputs[0].dtype])
+    arrays = [x.numpy(force=True).reshape(-1, width) for x, width in zip(inputs, widths)]
+    code, parameters = generated(formula, sum(widths), static, arrays=True)
+    keep = torch.is_grad_enabled() and any(x.requires_grad for x in inputs)
+    blocks = []  # (what the backward reads: each block's columns and saved values)
+    result = numpy.empty(batch + out_shape, dtype=_NUMPY_DTYPES[inputs[0].dtype])
+    out = result.reshape(rows, math.prod(out_shape))
     with numpy.errstate(all="ignore"):
         for start, stop, block in _blocks(arrays, rows):
-            for k, column in enumerate(formula(ARRAYS, *block, **static)):
+            outputs, saved = code.forward(*block, *parameters)
+            for k, column in enumerate(outputs):
                 out[start:stop, k] = column
-    result = torch.from_numpy(out).view(batch + out_shape)
-    if torch.is_grad_enabled() and any(x.requires_grad for x in inputs):
-        return _HostGradient.apply(result, arrays, widths, formula, static, fallback, *inputs)
-    return result
-
+            if keep:
+                blocks.append((start, stop, block, saved))
+    if keep:
+        tape = (_column_gradients, (code, parameters, blocks, widths, out.shape))
+        return _HostGradient.apply(torch.from_numpy(result), tape, fallback, *inputs)
+    return torch.from_numpy(result)

@@ -1,5 +1,6 @@
 """Euler angles in all 24 conventions <-> quaternions and matrices."""
 
+import math
 from typing import Optional
 
 from torch import Tensor
@@ -95,7 +96,7 @@ def quat_to_euler(q: Tensor, convention: str, degrees: bool = False, eps: Option
     degrees = check_degrees("quat_to_euler", degrees)
     q, dtype = prepare(q, "quat_to_euler", "q", (4,))
     eps = gimbal_threshold("quat_to_euler", eps, q.dtype)
-    return restore(run(E.quat_to_euler, (q,), (3,), name=name, eps=eps, degrees=degrees), dtype)
+    return restore(run(E.quat_to_euler, (q,), (3,), name=name, lock_sine=math.sin(eps), degrees=degrees), dtype)
 
 
 def matrix_to_euler(R: Tensor, convention: str, degrees: bool = False, eps: Optional[float] = None) -> Tensor:
@@ -126,7 +127,7 @@ def matrix_to_euler(R: Tensor, convention: str, degrees: bool = False, eps: Opti
     degrees = check_degrees("matrix_to_euler", degrees)
     R, dtype = prepare(R, "matrix_to_euler", "R", (3, 3))
     eps = gimbal_threshold("matrix_to_euler", eps, R.dtype)
-    return restore(run(E.matrix_to_euler, (R,), (3,), 2, name=name, eps=eps, degrees=degrees), dtype)
+    return restore(run(E.matrix_to_euler, (R,), (3,), 2, name=name, lock_sine=math.sin(eps), degrees=degrees), dtype)
 
 
 def euler_gimbal_lock(q: Tensor, convention: str, eps: Optional[float] = None) -> Tensor:
@@ -169,4 +170,4 @@ def euler_gimbal_lock(q: Tensor, convention: str, eps: Optional[float] = None) -
     eps = gimbal_threshold("euler_gimbal_lock", eps, q.dtype)
     columns = q.flatten(-2).unbind(-1) if matrix else q.unbind(-1)
     forms = E.forms_of_matrix(name, columns) if matrix else E.forms_of_quat(name, columns)
-    return E.lock(TENSORS, forms, eps)
+    return E.lock(TENSORS, forms, math.sin(eps))

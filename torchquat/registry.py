@@ -48,7 +48,7 @@ class Representation(NamedTuple):
 
 def _options(o: Options, x: Tensor) -> dict:
     eps = gimbal_eps(x.dtype) if o.eps is None else float(o.eps)
-    return {"name": o.convention.name, "degrees": o.degrees, "eps": eps}
+    return {"name": o.convention.name, "degrees": o.degrees, "lock_sine": math.sin(eps)}
 
 
 def _euler_options(o: Options) -> dict:

@@ -1,0 +1,253 @@
+"""A formula written out as straight-line Python: its forward steps and its reverse mode.
+
+The host paths (:mod:`torchquat._host`) run a formula of :mod:`torchquat._formulas` on Python
+floats or NumPy columns, where each step costs an interpreter call. The formula is traced once per
+set of options with symbolic :class:`Node` values (constants folded, repeated steps merged), and
+the trace is written out as two functions:
+
+* ``forward(*inputs, *parameters) -> (outputs, saved)``: the steps the outputs need, in the
+  formula's order (so the same roundings), and the values the backward reads;
+* ``backward(*inputs, *parameters, *saved, *output_gradients) -> input gradients``: each step's
+  adjoint by the textbook derivative of one elementary function, reading the saved values instead
+  of recomputing them. Signs are carried symbolically, so negation and subtraction cost no step.
+
+No derivative is written by hand, and the formula stays the one source. ``where`` passes the
+adjoint to the side it selected, as ``torch.where`` does. Float options (thresholds such as
+``lock_sine``) are *parameters*, arguments of the generated functions, so a new value generates
+nothing; the others (names, flags) are constants of the code.
+"""
+
+import math
+import re
+from typing import Callable, Dict, List, NamedTuple, Tuple
+
+import numpy
+
+from ._backends import _float_sign
+
+_CACHE: Dict[Tuple, "Generated"] = {}
+
+
+class _Graph:
+    """The steps of a trace, in order; a step already taken with the same arguments is reused
+    (the same operation on the same values rounds the same way)."""
+
+    def __init__(self):
+        self.nodes: List[Node] = []
+        self.memo: Dict[Tuple, Node] = {}
+
+    def node(self, op: str, args) -> "Node":
+        keys = tuple(("v", a.index) if isinstance(a, Node) else ("c", repr(a)) for a in args)
+        if op in ("add", "mul"):  # (IEEE addition and multiplication commute exactly)
+            keys = tuple(sorted(keys))
+        key = (op,) + keys
+        found = self.memo.get(key)
+        if found is None:
+            found = self.memo[key] = Node(self, op, args)
+        return found
+
+
+def _is_one(x) -> bool:
+    """A constant 1.0: a product or quotient with it is the other value, exactly."""
+    return type(x) is float and x == 1.0
+
+
+class Node:
+    """One step of a traced formula: an operation and its arguments (Nodes or constants)."""
+
+    __slots__ = ("op", "args", "index", "graph")
+
+    def __init__(self, graph: _Graph, op: str, args=()):
+        self.op, self.args, self.graph, self.index = op, tuple(args), graph, len(graph.nodes)
+        graph.nodes.append(self)
+
+    def _new(self, op, *args):
+        return self.graph.node(op, args)
+
+    def __add__(self, o): return self._new("add", self, o)
+    def __radd__(self, o): return self._new("add", o, self)
+    def __sub__(self, o): return self._new("sub", self, o)
+    def __rsub__(self, o): return self._new("sub", o, self)
+    def __mul__(self, o): return self if _is_one(o) else self._new("mul", self, o)
+    def __rmul__(self, o): return self if _is_one(o) else self._new("mul", o, self)
+    def __truediv__(self, o): return self if _is_one(o) else self._new("div", self, o)
+    def __rtruediv__(self, o): return self._new("div", o, self)
+    def __neg__(self): return self._new("neg", self)
+    def __lt__(self, o): return self._new("lt", self, o)
+    def __le__(self, o): return self._new("le", self, o)
+    def __gt__(self, o): return self._new("lt", o, self)
+    def __ge__(self, o): return self._new("le", o, self)
+    def __and__(self, o): return self._new("and", self, o)
+    def __rand__(self, o): return self._new("and", o, self)
+    def __or__(self, o): return self._new("or", self, o)
+    def __ror__(self, o): return self._new("or", o, self)
+
+
+_FLOAT_OPS = {"sqrt": math.sqrt, "sin": math.sin, "cos": math.cos, "atan2": math.atan2, "fmod": math.fmod,
+              "abs": abs, "sign": _float_sign, "where": lambda c, a, b: a if c else b}
+
+
+class _Trace:
+    """The namespace of :mod:`torchquat._backends` for tracing."""
+
+    pi = math.pi
+
+    @staticmethod
+    def _apply(op, *args):
+        node = next((a for a in args if isinstance(a, Node)), None)
+        return _FLOAT_OPS[op](*args) if node is None else node._new(op, *args)  # (constants fold)
+
+    def sqrt(self, x): return self._apply("sqrt", x)
+    def sin(self, x): return self._apply("sin", x)
+    def cos(self, x): return self._apply("cos", x)
+    def atan2(self, y, x): return self._apply("atan2", y, x)
+    def fmod(self, x, y): return self._apply("fmod", x, y)
+    def abs(self, x): return self._apply("abs", x)
+    def sign(self, x): return self._apply("sign", x)
+    def where(self, c, a, b): return self._apply("where", c, a, b)
+
+
+# how each operation is written, from its arguments' names
+_FORWARD = {
+    "add": "{0} + {1}", "sub": "{0} - {1}", "mul": "{0} * {1}", "div": "{0} / {1}", "neg": "-{0}",
+    "lt": "{0} < {1}", "le": "{0} <= {1}", "and": "{0} & {1}", "or": "{0} | {1}",
+    "sqrt": "sqrt({0})", "sin": "sin({0})", "cos": "cos({0})", "atan2": "atan2({0}, {1})", "fmod": "fmod({0}, {1})",
+    "abs": "abs({0})", "sign": "sign({0})", "where": "where({0}, {1}, {2})",
+}
+# each argument's adjoint contribution as (sign, term), from the node's adjoint {a}, its value {v},
+# its arguments {0}, {1}, ... and {r}, a per-node value written once before the terms (_ONCE)
+_BACKWARD = {
+    "add": ((1, "{a}"), (1, "{a}")), "sub": ((1, "{a}"), (-1, "{a}")), "neg": ((-1, "{a}"),),
+    "mul": ((1, "{a} * {1}"), (1, "{a} * {0}")), "div": ((1, "{a} / {1}"), (-1, "{a} * {v} / {1}")),
+    "sqrt": ((1, "{a} * 0.5 / {v}"),), "sin": ((1, "{a} * cos({0})"),), "cos": ((-1, "{a} * sin({0})"),),
+    "atan2": ((1, "{r} * {1}"), (-1, "{r} * {0}")),
+    "fmod": ((1, "{a}"), None), "abs": ((1, "{a} * sign({0})"),),
+    "where": (None, (1, "where({0}, {a}, 0.0)"), (1, "where({0}, 0.0, {a})")),
+}
+_ONCE = {"atan2": "{a} / ({0} * {0} + {1} * {1})"}
+# NumPy's where costs about four products: a product with the (boolean) condition selects instead
+_ARRAY_WHERE = (None, (1, "{a} * {0}"), (1, "{a} * ~{0}"))
+
+
+class Generated(NamedTuple):
+    forward: Callable
+    backward: Callable
+    parameters: Tuple[str, ...]  # the float options, in the order the functions take them
+
+
+def _name(x) -> str:
+    return f"v{x.index}" if isinstance(x, Node) else repr(float(x) if not isinstance(x, bool) else x)
+
+
+def _backward_lines(nodes: List[Node], outputs, n_inputs: int, arrays: bool) -> List[str]:
+    varies = [False] * len(nodes)  # depends on an input
+    for node in nodes:
+        varies[node.index] = node.op == "input" or any(isinstance(a, Node) and varies[a.index] for a in node.args)
+    carries = [False] * len(nodes)  # its adjoint reaches an input (not through a comparison or sign)
+    for node in nodes:
+        carries[node.index] = node.op == "input" or any(
+            rule is not None and isinstance(arg, Node) and carries[arg.index]
+            for arg, rule in zip(node.args, _BACKWARD.get(node.op, ())))
+    needed = [False] * len(nodes)  # carries an adjoint back from an output to an input
+    for o in outputs:
+        if isinstance(o, Node):
+            needed[o.index] = carries[o.index]
+    for node in reversed(nodes):
+        if needed[node.index] and node.op in _BACKWARD:
+            for arg, rule in zip(node.args, _BACKWARD[node.op]):
+                if rule is not None and isinstance(arg, Node) and carries[arg.index]:
+                    needed[arg.index] = True
+    lines: List[str] = []
+    adjoint: Dict[int, Tuple[str, int]] = {}  # node -> (name, sign): its adjoint is sign * name
+
+    def contribute(index: int, sign: int, term: str):
+        plain = re.fullmatch(r"[ag]\d+", term) is not None
+        if index not in adjoint:
+            if not plain:
+                lines.append(f"    a{index} = {term}")
+                term = f"a{index}"
+            adjoint[index] = (term, sign)
+            return
+        name, old = adjoint[index]
+        term = term if plain else f"({term})"
+        if old == sign:
+            lines.append(f"    a{index} = {name} + {term}")
+        else:  # (the positive one first: no negation)
+            lines.append(f"    a{index} = {name} - {term}" if old > 0 else f"    a{index} = {term} - {name}")
+            sign = 1
+        adjoint[index] = (f"a{index}", sign)
+
+    for k, o in enumerate(outputs):
+        if isinstance(o, Node) and needed[o.index]:
+            contribute(o.index, 1, f"g{k}")
+    for node in reversed(nodes):
+        if not needed[node.index] or node.op not in _BACKWARD or node.index not in adjoint:
+            continue
+        name, sign = adjoint[node.index]
+        condition = node.args[0] if node.op == "where" else None
+        rules = _ARRAY_WHERE if arrays and isinstance(condition, Node) and varies[condition.index] else _BACKWARD[node.op]
+        args = list(map(_name, node.args))
+        fields = dict(a=name, v=f"v{node.index}", r=f"r{node.index}")
+        if node.op == "mul" and node.args[0] is node.args[1]:  # (x * x: one term, twice)
+            rules = ((1, "2.0 * ({a} * {0})"), None)
+        if node.op in _ONCE:
+            lines.append(f"    r{node.index} = " + _ONCE[node.op].format(*args, **fields))
+        for arg, rule in zip(node.args, rules):
+            if rule is not None and isinstance(arg, Node) and needed[arg.index]:
+                contribute(arg.index, sign * rule[0], rule[1].format(*args, **fields))
+    results = []
+    for i in range(n_inputs):
+        name, sign = adjoint.get(i, ("0.0", 1))
+        results.append(name if sign > 0 else f"-{name}")
+    lines.append("    return [" + ", ".join(results) + "]")
+    return lines
+
+
+def _generate(formula, n_inputs: int, static: dict, arrays: bool) -> Generated:
+    graph = _Graph()
+    inputs = [Node(graph, "input") for _ in range(n_inputs)]
+    parameters = tuple(sorted(k for k, v in static.items() if type(v) is float))
+    options = dict(static, **{k: Node(graph, "parameter") for k in parameters})
+    outputs = formula(_Trace(), *inputs, **options)
+    nodes = graph.nodes
+    arguments = [f"v{i}" for i in range(n_inputs + len(parameters))]
+    backward = _backward_lines(nodes, outputs, n_inputs, arrays)
+    # the steps the outputs need (all that the backward reads are among them)
+    used = [False] * len(nodes)
+    for o in outputs:
+        if isinstance(o, Node):
+            used[o.index] = True
+    for node in reversed(nodes):
+        if used[node.index]:
+            for arg in node.args:
+                if isinstance(arg, Node):
+                    used[arg.index] = True
+    steps = [node for node in nodes[len(arguments):] if used[node.index]]
+    read = set(map(int, re.findall(r"\bv(\d+)\b", "\n".join(backward))))
+    saved = [f"v{node.index}" for node in steps if node.index in read]
+    forward = [f"def forward({', '.join(arguments)}):"]
+    forward += [f"    v{node.index} = " + _FORWARD[node.op].format(*map(_name, node.args)) for node in steps]
+    forward.append(f"    return ({''.join(_name(o) + ', ' for o in outputs)}), ({''.join(s + ', ' for s in saved)})")
+    gradients = [f"g{k}" for k in range(len(outputs))]
+    backward = [f"def backward({', '.join(arguments + saved + gradients)}):"] + backward
+    scope = dict(ARRAY_FUNCTIONS if arrays else FLOAT_FUNCTIONS, inf=math.inf, nan=math.nan)
+    title = f"<torchquat: {formula.__name__}{' on arrays' if arrays else ''}>"
+    exec(compile("\n".join(forward) + "\n\n" + "\n".join(backward), title, "exec"), scope)
+    return Generated(scope["forward"], scope["backward"], parameters)
+
+
+FLOAT_FUNCTIONS = {"sqrt": math.sqrt, "sin": math.sin, "cos": math.cos, "atan2": math.atan2, "fmod": math.fmod,
+                   "abs": abs, "sign": _float_sign, "where": _FLOAT_OPS["where"]}
+ARRAY_FUNCTIONS = {"sqrt": numpy.sqrt, "sin": numpy.sin, "cos": numpy.cos, "atan2": numpy.arctan2,
+                   "fmod": numpy.fmod, "abs": numpy.abs, "sign": numpy.sign, "where": numpy.where}
+
+
+def generated(formula, n_inputs: int, static: dict, arrays: bool = False) -> Tuple[Generated, list]:
+    """The generated functions of ``formula`` (in floats or, with ``arrays``, NumPy columns) and
+    the values of their parameters in ``static``; generated once per formula and constants."""
+    key = (formula, n_inputs, arrays, *[(k, v) for k, v in static.items() if type(v) is not float]) if static \
+        else (formula, n_inputs, arrays)
+    code = _CACHE.get(key)
+    if code is None:
+        code = _CACHE[key] = _generate(formula, n_inputs, static, arrays)
+    return code, [static[k] for k in code.parameters] if code.parameters else ()
