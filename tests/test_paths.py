@@ -2,6 +2,7 @@
 the eager batch, and the opt-in compiled kernel (``use_compiled_kernels``) give the same answers and
 gradients."""
 
+import numpy
 import pytest
 import torch
 
@@ -95,15 +96,19 @@ def test_second_derivatives_of_one_rotation_are_autograds_of_the_eager_formula(n
     assert torch.autograd.gradgradcheck(fn, row)
 
 
-@pytest.mark.parametrize("rows", [1, 5], ids=["one row", "batch"])
+@pytest.mark.parametrize("rows", [1, 5, 3000], ids=["one row", "batch", "large batch"])
 @pytest.mark.parametrize("name", sorted(ALL))
 def test_the_generated_reverse_mode_equals_autograd_of_the_tensor_formula(name, rows):
-    # One row (floats) and CPU batches (NumPy columns) get their gradient from the reverse mode that
-    # torchquat._codegen writes out from the formula; torch.func.vjp runs the tensor formula under
-    # autograd instead (its wrapped tensors take that path)
+    # One row (floats) and CPU batches (NumPy columns) get their values and gradient from the code
+    # that torchquat._codegen writes out from the formula; torch.func.vjp runs the tensor formula
+    # under autograd instead (its wrapped tensors take that path). Large batches select on bits.
     fn, generic, singular = ALL[name]
     for make in (generic, singular):
-        inputs = tuple(x[:rows] if x.dim() > 1 or (x.dim() == 1 and x.shape[0] > 4) else x for x in make())
+        def rows_of(x):
+            if rows > 5:  # (every row repeated: generic and singular rows side by side in one block)
+                return x.repeat((-(-rows // x.shape[0]),) + (1,) * (x.dim() - 1))
+            return x[:rows]
+        inputs = tuple(rows_of(x) if x.dim() > 1 or (x.dim() == 1 and x.shape[0] > 4) else x for x in make())
         if rows == 1:
             inputs = tuple(x[0] if x.dim() > 1 else x for x in inputs)
         leaves = tuple(x.clone().requires_grad_() for x in inputs)
@@ -118,3 +123,21 @@ def test_the_generated_reverse_mode_equals_autograd_of_the_tensor_formula(name, 
             finite = torch.isfinite(r)
             assert torch.isfinite(g).all(), name
             assert torch.allclose(g[finite], r[finite], atol=1e-9, rtol=1e-9), (name, make.__name__)
+
+
+@pytest.mark.parametrize("dtype", [numpy.float32, numpy.float64])
+def test_the_selection_on_bits_equals_numpys_where_for_every_value(dtype):
+    from torchquat._backends import _BLEND_ROWS, _array_where
+
+    special = numpy.array([0.0, -0.0, 1.0, -2.5, numpy.inf, -numpy.inf, numpy.nan, 1e-40, 3e38], dtype)
+    rng = numpy.random.default_rng(0)
+    a = rng.choice(special, _BLEND_ROWS * 2)
+    b = rng.choice(special, _BLEND_ROWS * 2)
+    condition = rng.random(_BLEND_ROWS * 2) < 0.5
+    cases = [(a, b), (a, numpy.array(1.0, dtype)), (numpy.array(-0.0, dtype), b), (a, 0.5), (-1.0, 1.0),
+             (a[:1], b)]
+    for x, y in cases:
+        expected = numpy.where(condition, x, y)
+        got = _array_where(condition, x, y)
+        assert got.dtype == expected.dtype and got.shape == expected.shape
+        assert numpy.array_equal(got.view(numpy.uint8), expected.view(numpy.uint8))  # (bit for bit)

@@ -172,10 +172,11 @@ def columns(formula, inputs: Sequence[Tensor], out_shape, row_dims: int, static,
         return None
     rows = math.prod(batch)
     arrays = [x.numpy(force=True).reshape(-1, width) for x, width in zip(inputs, widths)]
-    code, parameters = generated(formula, sum(widths), static, arrays=True)
+    dtype = _NUMPY_DTYPES[inputs[0].dtype]
+    code, parameters = generated(formula, sum(widths), static, numpy.dtype(dtype))
     keep = torch.is_grad_enabled() and any(x.requires_grad for x in inputs)
     blocks = []  # (what the backward reads: each block's columns and saved values)
-    result = numpy.empty(batch + out_shape, dtype=_NUMPY_DTYPES[inputs[0].dtype])
+    result = numpy.empty(batch + out_shape, dtype=dtype)
     out = result.reshape(rows, math.prod(out_shape))
     with numpy.errstate(all="ignore"):
         for start, stop, block in _blocks(arrays, rows):
