@@ -110,15 +110,15 @@ def angles(m, f, name: str, lock_sine: float, degrees: bool):
     conv = EULER_CONVENTIONS[name]
     sign = 1 if conv.symmetric else permutation(name)[1]
     ab2, cd2, y1, x1, h2, lock = _lock_test(m, f, lock_sine)
-    near0, nearpi = ab2 >= cd2, ab2 < cd2
+    near0 = ab2 >= cd2
     z = ab2 - cd2
     middle = m.atan2(h2, z) if conv.symmetric else m.atan2(-z, h2)
     t1 = m.atan2(m.where(lock, 0.0, y1), m.where(lock, 1.0, x1))
-    double_ab = m.atan2(m.where(nearpi, 0.0, f["day"]), m.where(nearpi, 1.0, f["dax"]))
-    double_cd = m.atan2(m.where(near0, 0.0, f["dcy"]), m.where(near0, 1.0, f["dcx"]))
-    t3 = m.where(near0, double_ab - t1, double_cd + t1)
+    # the double angle of the larger pair (its norm is |ab|^2 or |cd|^2, the larger: never 0 / 0)
+    double = m.atan2(m.where(near0, f["day"], f["dcy"]), m.where(near0, f["dax"], f["dcx"]))
+    t3 = double + m.where(near0, -t1, t1)
     t3 = m.where(t3 > math.pi, t3 - 2.0 * math.pi, m.where(t3 < -math.pi, t3 + 2.0 * math.pi, t3))
-    at_lock = m.where(near0, double_ab, double_cd if conv.intrinsic else -double_cd)
+    at_lock = double if conv.intrinsic else m.where(near0, double, -double)
     if conv.intrinsic:  # (computed as the reversed extrinsic sequence: its first angle is the last)
         out = (m.where(lock, at_lock, t3) * float(sign), middle, m.where(lock, 0.0, t1))
     else:
