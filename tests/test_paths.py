@@ -141,3 +141,14 @@ def test_the_selection_on_bits_equals_numpys_where_for_every_value(dtype):
         got = _array_where(condition, x, y)
         assert got.dtype == expected.dtype and got.shape == expected.shape
         assert numpy.array_equal(got.view(numpy.uint8), expected.view(numpy.uint8))  # (bit for bit)
+
+
+@pytest.mark.slow
+def test_compiled_gradients_pass_gradcheck_and_second_derivatives_are_autograds(compiled):
+    # the compiled backward is a second kernel (the formula's vector-Jacobian product); a gradient
+    # differentiated again runs the tensor formula under autograd
+    tq.use_compiled_kernels(True)
+    q = torch.randn(5, 4, dtype=torch.float64, requires_grad=True)
+    p = torch.randn(1, 4, dtype=torch.float64, requires_grad=True)  # (broadcast: its gradient sums)
+    assert torch.autograd.gradcheck(tq.quat_geodesic_distance, (p, q))
+    assert torch.autograd.gradgradcheck(tq.quat_to_matrix, (q,))

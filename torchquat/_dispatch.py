@@ -9,7 +9,9 @@ One source, four paths:
   formula on the batch's columns (``unbind(-1)``), one PyTorch operation a step, autograd's
   backward. Inside a user's ``torch.compile`` or ``torch.export`` this is what gets traced.
 * **compiled** (:func:`use_compiled_kernels`): ``torch.compile`` of that same eager function, once
-  per formula and set of options; inductor fuses it into one loop.
+  per formula and set of options; inductor fuses it into one loop. Its gradient is a second
+  compiled loop, the vector-Jacobian product of the same function (``torch.func.vjp``), which
+  recomputes the forward from the inputs instead of saving its intermediates.
 """
 
 import os
@@ -20,7 +22,7 @@ import torch
 from torch import Tensor
 
 from ._backends import TENSORS
-from ._host import columns, has_storage, one_row
+from ._host import Gradient, columns, has_storage, one_row
 
 __all__ = ["use_compiled_kernels", "compiled_kernels_enabled", "run"]
 
@@ -78,21 +80,36 @@ def eager(formula, inputs: Sequence[Tensor], out_shape, row_dims: int, static) -
     return torch.stack(out, -1).unflatten(-1, out_shape) if len(out_shape) > 1 else torch.stack(out, -1)
 
 
-def _kernel(formula, out_shape, row_dims: int, static) -> Callable:
+def _compile(function, name: str) -> Callable:
+    # a code object of its own: dynamo keeps compiled graphs, and its recompile limit, per code object
+    code = function.__code__.replace(co_name=f"{name}_{len(_compiled)}")
+    function = types.FunctionType(code, function.__globals__, code.co_name, None, function.__closure__)
+    try:
+        return torch.compile(function, dynamic=True, fullgraph=True, options=_INDUCTOR_OPTIONS)
+    except RuntimeError:  # (a torch whose inductor has no such option: its defaults)
+        return torch.compile(function, dynamic=True, fullgraph=True)
+
+
+def _kernels(formula, out_shape, row_dims: int, static) -> Tuple[Callable, Callable]:
+    """The compiled forward of a formula and its compiled vector-Jacobian product."""
     key = (formula, out_shape, row_dims, tuple(sorted(static.items())))
-    compiled = _compiled.get(key)
-    if compiled is None:
-        def kernel(*inputs):
+    kernels = _compiled.get(key)
+    if kernels is None:
+        def forward(*inputs):
             return eager(formula, inputs, out_shape, row_dims, static)
-        # a code object of its own: dynamo keeps compiled graphs, and its recompile limit, per code object
-        code = kernel.__code__.replace(co_name=f"{formula.__name__}_{len(_compiled)}")
-        kernel = types.FunctionType(code, kernel.__globals__, code.co_name, None, kernel.__closure__)
-        try:
-            compiled = torch.compile(kernel, dynamic=True, fullgraph=True, options=_INDUCTOR_OPTIONS)
-        except RuntimeError:  # (a torch whose inductor has no such option: its defaults)
-            compiled = torch.compile(kernel, dynamic=True, fullgraph=True)
-        _compiled[key] = compiled
-    return compiled
+
+        def vjp(*inputs_and_gradient):
+            # At a million rows the forward's saved intermediates (5-10 columns) cost more to write
+            # and read back than the forward costs to recompute inside the backward's loop.
+            _, pullback = torch.func.vjp(forward, *inputs_and_gradient[:-1])
+            return pullback(inputs_and_gradient[-1])
+
+        kernels = _compiled[key] = (_compile(forward, formula.__name__), _compile(vjp, formula.__name__ + "_vjp"))
+    return kernels
+
+
+def _compiled_gradients(vjp, grad, inputs):
+    return vjp(*inputs, grad)
 
 
 def run(formula, inputs: Sequence[Tensor], out_shape: Tuple[int, ...], row_dims: int = 1, **static) -> Tensor:
@@ -108,7 +125,12 @@ def run(formula, inputs: Sequence[Tensor], out_shape: Tuple[int, ...], row_dims:
             return out
         if _enabled:
             if all(has_storage(x) for x in inputs):
-                return _kernel(formula, out_shape, row_dims, static)(*inputs)
+                forward, vjp = _kernels(formula, out_shape, row_dims, static)
+                if torch.is_grad_enabled() and any(x.requires_grad for x in inputs):
+                    with torch.no_grad():
+                        out = forward(*inputs)
+                    return Gradient.apply(out, _compiled_gradients, vjp, fallback, *inputs)
+                return forward(*inputs)
         else:
             out = columns(formula, inputs, out_shape, row_dims, static, fallback)
             if out is not None:

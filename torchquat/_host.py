@@ -5,7 +5,7 @@ On the CPU every PyTorch operation costs its dispatch (2-5 us) whatever it compu
 node a step. The same formula, written out as straight-line code by :mod:`torchquat._codegen`,
 runs here on Python floats (0.05 us a step) for one rotation and on NumPy columns (about half of
 PyTorch's cost a step, in blocks that stay in cache) for a batch; the forward keeps the values its
-generated reverse mode reads, and one autograd node (:class:`_HostGradient`) hands that reverse
+generated reverse mode reads, and one autograd node (:class:`Gradient`) hands that reverse
 mode to autograd. Anything these paths do not take (a GPU tensor, a
 tensor subclass, a ``torch.func`` transform, a trace) returns ``None``, and the caller runs the
 tensor formula.
@@ -37,26 +37,23 @@ def has_storage(x: Tensor) -> bool:
     return True
 
 
-class _HostGradient(torch.autograd.Function):
-    """A result of these paths, whose backward is the formula's generated reverse mode on the
-    floats or columns its forward kept (``tape``: the function that runs it and what it reads).
-    Where that is not finite, or the gradient is differentiated again (``create_graph``), the
-    backward runs ``fallback`` (the tensor formula) under autograd, so higher derivatives are
-    autograd's."""
+class Gradient(torch.autograd.Function):
+    """A result whose backward is ``gradients(tape, grad, inputs)``: the generated reverse mode on
+    the floats or columns the forward kept, or a compiled vector-Jacobian product. Where that
+    returns ``None`` (a gradient that is not finite), or the gradient is differentiated again
+    (``create_graph``), the backward runs ``fallback`` (the tensor formula) under autograd, so
+    higher derivatives are autograd's."""
 
     @staticmethod
-    def forward(ctx, out: Tensor, tape, fallback: Callable, *inputs):
-        ctx.tape, ctx.fallback = tape, fallback
+    def forward(ctx, out: Tensor, gradients: Callable, tape, fallback: Callable, *inputs):
+        ctx.gradients, ctx.tape, ctx.fallback = gradients, tape, fallback
         ctx.save_for_backward(*inputs)
         return out
 
     @staticmethod
     def backward(ctx, grad):
         inputs = ctx.saved_tensors
-        grads = None
-        if not torch.is_grad_enabled():
-            gradients, tape = ctx.tape
-            grads = gradients(tape, grad, [x.requires_grad for x in inputs], [x.shape for x in inputs])
+        grads = None if torch.is_grad_enabled() else ctx.gradients(ctx.tape, grad, inputs)
         if grads is None:
             inputs = [x.view_as(x) for x in inputs]  # (each slot its own node: the same tensor may fill two)
             wanted = [x for x in inputs if x.requires_grad]
@@ -64,11 +61,11 @@ class _HostGradient(torch.autograd.Function):
                 out = ctx.fallback(inputs)
             found = iter(torch.autograd.grad(out, wanted, grad, create_graph=torch.is_grad_enabled(),
                                              allow_unused=True))
-            grads = [next(found) if x.requires_grad else None for x in inputs]
-        return (None, None, None) + tuple(grads)
+            return (None,) * 4 + tuple(next(found) if x.requires_grad else None for x in inputs)
+        return (None,) * 4 + tuple(g if x.requires_grad else None for g, x in zip(grads, inputs))
 
 
-def _row_gradients(tape, grad: Tensor, wanted, shapes):
+def _row_gradients(tape, grad: Tensor, inputs):
     code, parameters, values, saved, widths = tape
     try:
         flat = code.backward(*values, *parameters, *saved, *grad.reshape(-1).tolist())
@@ -77,15 +74,16 @@ def _row_gradients(tape, grad: Tensor, wanted, shapes):
     if not all(map(math.isfinite, flat)):
         return None
     dtype, grads, start = _NUMPY_DTYPES[grad.dtype], [], 0
-    for width, want, shape in zip(widths, wanted, shapes):
-        grads.append(torch.from_numpy(numpy.array(flat[start:start + width], dtype=dtype).reshape(shape))
-                     if want else None)
+    for width, x in zip(widths, inputs):
+        grads.append(torch.from_numpy(numpy.array(flat[start:start + width], dtype=dtype).reshape(x.shape))
+                     if x.requires_grad else None)
         start += width
     return grads
 
 
-def _column_gradients(tape, grad: Tensor, wanted, shapes):
+def _column_gradients(tape, grad: Tensor, inputs):
     code, parameters, blocks, widths, (rows, width) = tape
+    wanted, shapes = [x.requires_grad for x in inputs], [x.shape for x in inputs]
     g = grad.numpy(force=True).reshape(rows, width)
     grads = [numpy.empty((rows, width), dtype=g.dtype) for width in widths]
     targets = [(array, j) for array in grads for j in range(array.shape[1])]
@@ -141,8 +139,7 @@ def one_row(formula, inputs: Sequence[Tensor], out_shape, row_dims: int, static,
     # (NumPy builds and shapes a small array faster than torch.tensor; each entry rounded once)
     result = torch.from_numpy(numpy.array(out, dtype=numpy_dtype).reshape(batch + out_shape))
     if grad and torch.is_grad_enabled():
-        tape = (_row_gradients, (code, parameters, values, saved, widths))
-        return _HostGradient.apply(result, tape, fallback, *inputs)
+        return Gradient.apply(result, _row_gradients, (code, parameters, values, saved, widths), fallback, *inputs)
     return result
 
 
@@ -186,6 +183,6 @@ def columns(formula, inputs: Sequence[Tensor], out_shape, row_dims: int, static,
             if keep:
                 blocks.append((start, stop, block, saved))
     if keep:
-        tape = (_column_gradients, (code, parameters, blocks, widths, out.shape))
-        return _HostGradient.apply(torch.from_numpy(result), tape, fallback, *inputs)
+        tape = (code, parameters, blocks, widths, out.shape)
+        return Gradient.apply(torch.from_numpy(result), _column_gradients, tape, fallback, *inputs)
     return torch.from_numpy(result)
