@@ -204,12 +204,12 @@ def _backward_lines(nodes: List[Node], outputs, n_inputs: int, name: _Names) -> 
                 term = f"a{index}"
             adjoint[index] = (term, sign)
             return
-        name, old = adjoint[index]
+        current, old = adjoint[index]
         term = term if plain else f"({term})"
         if old == sign:
-            lines.append(f"    a{index} = {name} + {term}")
+            lines.append(f"    a{index} = {current} + {term}")
         else:  # (the positive one first: no negation)
-            lines.append(f"    a{index} = {name} - {term}" if old > 0 else f"    a{index} = {term} - {name}")
+            lines.append(f"    a{index} = {current} - {term}" if old > 0 else f"    a{index} = {term} - {current}")
             sign = 1
         adjoint[index] = (f"a{index}", sign)
 
