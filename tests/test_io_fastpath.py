@@ -317,3 +317,23 @@ def test_orthogonality_error_matches_the_einsum_definition():
     error, det = _orthogonality_error_and_det(R)
     np.testing.assert_allclose(error, np.abs(gram).reshape(-1, 9).max(axis=1), rtol=1e-14)
     np.testing.assert_allclose(det, np.linalg.det(R), rtol=1e-12, atol=1e-12)
+
+
+def test_without_the_read_ahead_thread_the_same_output_and_errors(tmp_path, polars_on):
+    """read_ahead=False (a cluster's worker): no thread started, the same bytes, the same error line."""
+    src = tmp_path / "in.kitti"
+    src.write_text(kitti_rows(1000))
+    counts = {}
+    for read_ahead in (True, False):
+        seen = []
+        convert_file(src, tmp_path / f"{read_ahead}.tum", chunk_size=64, read_ahead=read_ahead,
+                     on_chunk=lambda done: seen.append(threading.active_count()))
+        counts[read_ahead] = max(seen)
+    assert (tmp_path / "False.tum").read_bytes() == (tmp_path / "True.tum").read_bytes()
+    assert counts[False] == threading.active_count() < counts[True]
+    lines = kitti_rows(1000).splitlines(keepends=True)
+    lines[777] = "1 2 3\n"
+    src.write_text("".join(lines))
+    with pytest.raises(PoseFileError) as info:
+        convert_file(src, tmp_path / "bad.tum", chunk_size=64, read_ahead=False)
+    assert info.value.line == 778 and not (tmp_path / "bad.tum").exists()

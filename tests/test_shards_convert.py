@@ -75,6 +75,25 @@ def test_each_output_equals_the_one_file_conversion(shards, tmp_path, scheduler)
         assert Path(result.dst).read_bytes() == alone.read_bytes(), result.src
 
 
+def test_a_worker_converts_on_one_thread_to_the_same_bytes(shards, tmp_path, monkeypatch):
+    """On a worker (option one_thread) no read-ahead thread is started; the output is the one-file one."""
+    from torchquat.io import streaming
+    from torchquat.io.shards import convert_one
+    started = []
+    monkeypatch.setattr(streaming, "_read_ahead", lambda chunks: started.append(1) or chunks)
+    threads = torch.get_num_threads()
+    try:
+        result = convert_one(str(shards / "seq1" / "part1.txt"), str(tmp_path / "w.tum"), {"to": "tum", "one_thread": True})
+        assert torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(threads)
+    assert (result.status, result.rows, started) == ("written", KITTI_LINES, [])
+    convert_one(str(shards / "seq1" / "part1.txt"), str(tmp_path / "here.tum"), {"to": "tum"})
+    assert started == [1]  # (in the calling process the read-ahead thread is kept)
+    convert_file(shards / "seq1" / "part1.txt", tmp_path / "alone.tum")
+    assert (tmp_path / "w.tum").read_bytes() == (tmp_path / "here.tum").read_bytes() == (tmp_path / "alone.tum").read_bytes()
+
+
 def test_a_second_run_resumes(shards, tmp_path, scheduler):
     out = tmp_path / "out"
     (shards / "seq0" / "broken.txt").unlink()

@@ -233,7 +233,9 @@ def convert_one(src: str, dst: str, options: Dict) -> FileResult:
     Args:
         src: input file.
         dst: output file; its folder is made if missing.
-        options: ``to``, ``from_format``, ``degrees``, ``dtype`` (a name), ``chunk_size``.
+        options: ``to``, ``from_format``, ``degrees``, ``dtype`` (a name), ``chunk_size``;
+            ``one_thread`` (on a worker): torch on one thread and no read-ahead thread, since the
+            other workers keep the other cores busy (the thread would only add its cost).
 
     Returns:
         A :class:`FileResult`: written, or failed with the one-line problem (a user's error:
@@ -243,8 +245,9 @@ def convert_one(src: str, dst: str, options: Dict) -> FileResult:
 
     from .mocap import convert_motion, is_motion_conversion
     from .streaming import convert_file
-    if options.get("one_thread") and torch.get_num_threads() != 1:
-        torch.set_num_threads(1)  # (a worker: 10k-row chunks do not pay for intra-op threads; see cli.run_convert)
+    one_thread = bool(options.get("one_thread"))  # (a worker: one per core, so each file on one thread)
+    if one_thread and torch.get_num_threads() != 1:
+        torch.set_num_threads(1)  # (10k-row chunks do not pay for intra-op threads; see cli.run_convert)
     report = Report()
     dtype = np.dtype(options.get("dtype", "float64")).type
     to, from_format, degrees = options.get("to"), options.get("from_format"), options.get("degrees", False)
@@ -258,7 +261,8 @@ def convert_one(src: str, dst: str, options: Dict) -> FileResult:
                                   report=report)
         else:
             rows = convert_file(src, dst, to=to, from_format=from_format, degrees=degrees, dtype=dtype,
-                                chunk_size=options.get("chunk_size", DEFAULT_CHUNK_SIZE), report=report)
+                                chunk_size=options.get("chunk_size", DEFAULT_CHUNK_SIZE), report=report,
+                                read_ahead=False if one_thread else None)
     except (ValueError, OSError) as err:
         message = f"{err.filename}: {err.strerror or err}" if isinstance(err, OSError) and err.filename else str(err)
         return FileResult(src, dst, "failed", message=message, notes=report.lines())

@@ -233,7 +233,7 @@ def write_poses(path: PathLike, poses: Union[Poses, Iterable[Poses]], format: Op
 def convert_file(src: PathLike, dst: PathLike, to: Optional[str] = None, from_format: Optional[str] = None,
                  degrees: bool = False, dtype=np.float64, times: Optional[PathLike] = None,
                  chunk_size: int = DEFAULT_CHUNK_SIZE, report: Optional[Report] = None,
-                 on_chunk: Optional[Callable[[int], None]] = None) -> int:
+                 on_chunk: Optional[Callable[[int], None]] = None, read_ahead: Optional[bool] = None) -> int:
     """Convert a pose file to another format or rotation representation, streaming.
 
     Args:
@@ -247,6 +247,9 @@ def convert_file(src: PathLike, dst: PathLike, to: Optional[str] = None, from_fo
         chunk_size: lines per chunk.
         report: collects what was assumed and repaired.
         on_chunk: progress callback, given the input bytes read so far.
+        read_ahead: parse the next chunk in a thread meanwhile; None: ``READ_AHEAD``. False where
+            other processes already keep every core busy (a worker of a local cluster): the
+            thread then only adds its cost. The output is the same either way.
 
     Returns:
         The number of poses written.
@@ -264,7 +267,7 @@ def convert_file(src: PathLike, dst: PathLike, to: Optional[str] = None, from_fo
     if chunk_size < 1:
         raise ValueError(f"convert_file: chunk_size must be positive, got {chunk_size}")
     pairs = _chunks_and_positions(src, source, times, chunk_size, report)
-    if READ_AHEAD:
+    if READ_AHEAD if read_ahead is None else read_ahead:
         pairs = _read_ahead(pairs)
 
     def chunks() -> Iterator[Poses]:
