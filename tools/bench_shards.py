@@ -3,7 +3,8 @@
     python tools/bench_shards.py [--shards 48] [--rows 50000] [--single 1000000] [--skip-evo]
 
 1. ``torchquat convert SHARDS/ OUT/ --to tum --workers N`` for N = 1 and 2, end to end in a fresh
-   process (import, cluster start and close included): the wall time of each and the speed-up.
+   process (import, cluster start and close included): the wall time of each and the speed-up;
+   and, as the machine's ceiling, two independent ``--workers 1`` processes on half the files each.
 2. Memory per worker, flat in the file size: a local cluster of 2 processes converts shards of
    ``rows`` and of ``4 * rows`` poses; each worker's peak RSS (VmHWM) is read after each run.
 3. One file, one process: ``rows`` KITTI poses to TUM with ``torchquat convert`` (wall time, peak
@@ -14,6 +15,7 @@ The shards are KITTI_00_gt.txt (../shared/data) tiled to the size asked for.
 """
 
 import argparse
+import math
 import os
 import subprocess
 import sys
@@ -67,6 +69,27 @@ def speedup(root: Path, count: int, rows: int) -> None:
         print(f"  --workers {workers}: {wall:.2f} s  ({err.strip().splitlines()[-1]})", flush=True)
     print(f"{count} shards x {rows} poses to TUM: --workers 1 {times[1]:.2f} s, --workers 2 {times[2]:.2f} s, "
           f"speed-up {times[1] / times[2]:.2f}x (target >= 1.7x)", flush=True)
+    # The machine's own ceiling, without Dask: the same files in two halves, converted by two
+    # independent `--workers 1` processes at once, against one process converting all of them.
+    halves = [root / f"half_{k}" for k in (0, 1)]
+    for k, half in enumerate(halves):
+        half.mkdir(exist_ok=True)
+        for i in range(k, count, 2):
+            target = half / f"shard{i:03d}.txt"
+            if not target.exists():
+                os.link(folder / f"shard{i:03d}.txt", target)
+    command = [sys.executable, "-m", "torchquat", "convert", "IN", "OUT", "--to", "tum", "--workers", "1", "--overwrite"]
+    best = None
+    for _ in range(2):
+        start = time.perf_counter()
+        children = [subprocess.Popen([str(half) if c == "IN" else str(root / f"out_{half.name}") if c == "OUT" else c
+                                      for c in command], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                    for half in halves]
+        if any(child.wait() for child in children):
+            raise SystemExit("a half's conversion failed")
+        best = min(best or math.inf, time.perf_counter() - start)
+    print(f"  no Dask, two processes on a half each: {best:.2f} s, speed-up {times[1] / best:.2f}x "
+          "(what two processes gain on this machine)", flush=True)
 
 
 def worker_memory(root: Path, rows: int) -> None:
