@@ -26,10 +26,10 @@ def safe_sqrt(m, s):
 def standardize(m, w, x, y, z):
     """``q`` or ``-q``: ``w > 0``, or ``w == 0`` and the first non-zero of ``x, y, z`` positive.
 
-    ``8 sign(w) + 4 sign(x) + 2 sign(y) + sign(z)`` has the sign of the first non-zero component
-    (each weight exceeds the sum of the later ones)."""
-    key = 8.0 * m.sign(w) + 4.0 * m.sign(x) + 2.0 * m.sign(y) + m.sign(z)
-    s = m.where(key < 0, -1.0, 1.0)
+    The first non-zero component is negative when ``w < 0``, or ``w <= 0`` (so ``w == 0``) and the
+    same holds of ``x, y, z``: comparisons only (NaN compares false and is kept)."""
+    negative = (w < 0.0) | ((w <= 0.0) & ((x < 0.0) | ((x <= 0.0) & ((y < 0.0) | ((y <= 0.0) & (z < 0.0))))))
+    s = m.where(negative, -1.0, 1.0)
     return w * s, x * s, y * s, z * s
 
 
