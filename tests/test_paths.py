@@ -1,6 +1,6 @@
-"""Every path runs the same formula: one rotation on Python floats (with the dual numbers' gradient),
-the eager batch, and the opt-in compiled kernel (``use_compiled_kernels``) give the same answers and
-gradients."""
+"""Every path runs the same formula: one rotation on Python floats and CPU batches on NumPy columns
+(the formula's generated code and reverse mode), the tensor formula, and the opt-in compiled kernel
+(``use_compiled_kernels``) give the same answers and gradients."""
 
 import numpy
 import pytest
