@@ -82,9 +82,9 @@ def _row_gradients(tape, grad: Tensor, inputs):
 
 
 def _column_gradients(tape, grad: Tensor, inputs):
-    code, parameters, blocks, widths, (rows, width) = tape
+    code, parameters, blocks, widths, (rows, out_width) = tape
     wanted, shapes = [x.requires_grad for x in inputs], [x.shape for x in inputs]
-    g = grad.numpy(force=True).reshape(rows, width)
+    g = grad.numpy(force=True).reshape(rows, out_width)
     grads = [numpy.empty((rows, width), dtype=g.dtype) for width in widths]
     targets = [(array, j) for array in grads for j in range(array.shape[1])]
     with numpy.errstate(all="ignore"):
