@@ -21,7 +21,7 @@ from torch import Tensor
 from ._codegen import generated
 
 _PLAIN = (Tensor, torch.nn.Parameter)  # (a subclass may change what tolist and numpy read)
-_NUMPY_DTYPES = {torch.float32: numpy.float32, torch.float64: numpy.float64}
+_NUMPY_DTYPES = {torch.float32: numpy.dtype(numpy.float32), torch.float64: numpy.dtype(numpy.float64)}
 _FLOAT_FAILURES = (ZeroDivisionError, ValueError, OverflowError)
 # Rows per block of a NumPy batch: 64 KB a float32 column, so that the few columns a formula step
 # reads and writes stay in a core's cache (any CPU's L2 holds several).
@@ -83,27 +83,26 @@ def _row_gradients(tape, grad: Tensor, inputs):
 
 def _column_gradients(tape, grad: Tensor, inputs):
     code, parameters, blocks, widths, (rows, out_width) = tape
-    wanted, shapes = [x.requires_grad for x in inputs], [x.shape for x in inputs]
     g = grad.numpy(force=True).reshape(rows, out_width)
     grads = [numpy.empty((rows, width), dtype=g.dtype) for width in widths]
-    targets = [(array, j) for array in grads for j in range(array.shape[1])]
     with numpy.errstate(all="ignore"):
         for start, stop, block, saved in blocks:
-            gradients = g[start:stop].T.copy() if g.shape[1] > 1 else (g[start:stop, 0],)
-            for (array, j), column in zip(targets, code.backward(*block, *parameters, *saved, *gradients)):
-                array[start:stop, j] = column
-        # (one row broadcast over the batch: its gradient sums; an overflowing sum only falls back)
-        grads = [a.sum(0) if math.prod(shape) == width < a.size else a for a, width, shape in zip(grads, widths, shapes)]
-        if not all(numpy.isfinite(a.sum()) for a, want in zip(grads, wanted) if want):
-            return None
-    return [torch.from_numpy(a.reshape(shape)) if want else None for a, want, shape in zip(grads, wanted, shapes)]
-
-
-def _usable(inputs: Sequence[Tensor]) -> bool:
-    for x in inputs:  # (each attribute read of a tensor costs 0.05-0.3 us: few, cheapest first)
-        if type(x) not in _PLAIN or not x.is_cpu or not has_storage(x):
-            return False
-    return inputs[0].dtype in _NUMPY_DTYPES
+            gradients = g[start:stop].T.copy() if out_width > 1 else (g[start:stop, 0],)
+            columns = iter(code.backward(*block, *parameters, *saved, *gradients))
+            for array in grads:
+                for j in range(array.shape[1]):
+                    array[start:stop, j] = next(columns)
+        result = []
+        for a, x, width in zip(grads, inputs, widths):
+            if not x.requires_grad:
+                result.append(None)
+                continue
+            if x.numel() == width < a.size:  # (one row broadcast over the batch: its gradient sums)
+                a = a.sum(0)
+            if not math.isfinite(a.sum()):  # (an overflowing sum only falls back)
+                return None
+            result.append(torch.from_numpy(a.reshape(x.shape)))
+    return result
 
 
 def one_row(formula, inputs: Sequence[Tensor], out_shape, row_dims: int, static, fallback) -> Optional[Tensor]:
@@ -143,46 +142,48 @@ def one_row(formula, inputs: Sequence[Tensor], out_shape, row_dims: int, static,
     return result
 
 
-def _blocks(arrays, rows: int):
-    """``(start, stop, columns)`` for each block of rows: each input's columns in that block,
-    contiguous (NumPy takes up to 3x as long a step on strided ones) and in cache; a one-row
-    input's own columns in every block (broadcast)."""
-    for start in range(0, rows, BLOCK_ROWS):
-        stop = min(start + BLOCK_ROWS, rows)
-        yield start, stop, [c for a in arrays for c in (a if a.shape[0] == 1 else a[start:stop]).T.copy()]
+def _block(arrays, start: int):
+    """Each input's columns in the block of rows from ``start``: contiguous (NumPy takes up to 3x as
+    long a step on strided ones) and in cache; a one-row input's own columns (broadcast)."""
+    return [c for a in arrays for c in (a if len(a) == 1 else a[start:start + BLOCK_ROWS]).T.copy()]
 
 
 def columns(formula, inputs: Sequence[Tensor], out_shape, row_dims: int, static, fallback) -> Optional[Tensor]:
     """The formula on NumPy columns of a CPU batch, block by block, or ``None`` where this path does
     not apply. Each input has the batch shape, or is one row (broadcast)."""
-    if not _usable(inputs):
-        return None
-    batch, widths = None, []
-    for x in inputs:
+    batch, widths, keep = None, [], False
+    for x in inputs:  # (each attribute read of a tensor costs 0.05-0.3 us: few, cheapest first)
+        if type(x) not in _PLAIN or not x.is_cpu or not has_storage(x):
+            return None
         width = x.shape[-1] if row_dims == 1 else 9
         widths.append(width)
         if x.numel() != width:
-            if batch is not None and x.shape[:-row_dims] != batch:
+            if batch is None:
+                batch = x.shape[:-row_dims]
+            elif x.shape[:-row_dims] != batch:
                 return None
-            batch = x.shape[:-row_dims]
-    if batch is None:
+        keep = keep or x.requires_grad
+    dtype = _NUMPY_DTYPES.get(inputs[0].dtype)
+    if batch is None or dtype is None:
         return None
+    keep = keep and torch.is_grad_enabled()
     rows = math.prod(batch)
     arrays = [x.numpy(force=True).reshape(-1, width) for x, width in zip(inputs, widths)]
-    dtype = _NUMPY_DTYPES[inputs[0].dtype]
-    code, parameters = generated(formula, sum(widths), static, numpy.dtype(dtype))
-    keep = torch.is_grad_enabled() and any(x.requires_grad for x in inputs)
+    code, parameters = generated(formula, sum(widths), static, dtype)
+    out = numpy.empty((rows, math.prod(out_shape)), dtype)
     blocks = []  # (what the backward reads: each block's columns and saved values)
-    result = numpy.empty(batch + out_shape, dtype=dtype)
-    out = result.reshape(rows, math.prod(out_shape))
     with numpy.errstate(all="ignore"):
-        for start, stop, block in _blocks(arrays, rows):
-            outputs, saved = code.forward(*block, *parameters)
+        for start in range(0, rows, BLOCK_ROWS):
+            stop = start + BLOCK_ROWS
+            block = _block(arrays, start)
+            if keep:
+                outputs, saved = code.forward(*block, *parameters)
+                blocks.append((start, stop, block, saved))
+            else:
+                outputs = code.evaluate(*block, *parameters)
             for k, column in enumerate(outputs):
                 out[start:stop, k] = column
-            if keep:
-                blocks.append((start, stop, block, saved))
+    result = torch.from_numpy(out.reshape(batch + out_shape))
     if keep:
-        tape = (code, parameters, blocks, widths, out.shape)
-        return Gradient.apply(torch.from_numpy(result), _column_gradients, tape, fallback, *inputs)
-    return torch.from_numpy(result)
+        return Gradient.apply(result, _column_gradients, (code, parameters, blocks, widths, out.shape), fallback, *inputs)
+    return result
