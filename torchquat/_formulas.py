@@ -20,9 +20,10 @@ SMALL_CHORD_ANGLE_SQUARED = 1e-6  # |p - q|^2 for slerp's sin(f theta) / sin(the
 
 
 def safe_sqrt(m, s):
-    """``sqrt(s)`` with a zero gradient (not inf) at ``s = 0``."""
+    """``sqrt(s)`` with a zero gradient (not inf) at ``s = 0`` (and 0 for NaN): the square root of
+    a safe substitute, times the condition (a product costs less than a second selection)."""
     positive = s > 0
-    return m.where(positive, m.sqrt(m.where(positive, s, 1.0)), 0.0)
+    return m.sqrt(m.where(positive, s, 1.0)) * positive
 
 
 def standardize(m, w, x, y, z):
@@ -170,9 +171,13 @@ def rot6d_to_matrix(m, a0, a1, a2, b0, b1, b2, noise: float):
 
 
 def quat_distance(m, pw, px, py, pz, qw, qx, qy, qz):
-    """``4 atan2(min(|p - q|, |p + q|), max(...))`` of the normalised inputs: the chords give half
-    the angle between the 4-vectors, accurately at 0 and pi (no ``acos``), sign-invariant; equal
-    inputs give an exact 0 and a zero (finite) gradient; the zero quaternion gives NaN."""
+    """The angle between the rotations of the normalised inputs, from the chords
+    ``minus = |p - q|^2 = 2 - 2c`` and ``plus = |p + q|^2 = 2 + 2c`` (``c = <p, q>``): with the
+    half angle ``phi`` between the lines of ``p`` and ``q``, ``minus * plus = 4 sin^2 phi`` and
+    ``|plus - minus| = 4 |cos phi|``, so the angle ``2 phi`` is
+    ``2 atan2(sqrt(minus * plus), |plus - minus| / 2)``: each factor accurate at 0 and pi (no
+    ``acos``, no ``1 - c^2``), sign-invariant without choosing a chord; equal inputs give an exact
+    0 and a zero (finite) gradient; the zero quaternion gives NaN."""
     ip = 1.0 / m.sqrt(pw * pw + px * px + py * py + pz * pz)
     iq = 1.0 / m.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
     pw, px, py, pz = pw * ip, px * ip, py * ip, pz * ip
@@ -181,8 +186,7 @@ def quat_distance(m, pw, px, py, pz, qw, qx, qy, qz):
     sw, sx, sy, sz = pw + qw, px + qx, py + qy, pz + qz
     minus = dw * dw + dx * dx + dy * dy + dz * dz
     plus = sw * sw + sx * sx + sy * sy + sz * sz
-    nearer = minus < plus
-    return (4.0 * m.atan2(safe_sqrt(m, m.where(nearer, minus, plus)), m.sqrt(m.where(nearer, plus, minus))),)
+    return (2.0 * m.atan2(safe_sqrt(m, minus * plus), m.abs(plus - minus) * 0.5),)
 
 
 def matrix_distance(m, a00, a01, a02, a10, a11, a12, a20, a21, a22, b00, b01, b02, b10, b11, b12, b20, b21, b22):

@@ -12,7 +12,8 @@ __all__ = ["quat_geodesic_distance", "matrix_geodesic_distance"]
 def quat_geodesic_distance(q1: Tensor, q2: Tensor) -> Tensor:
     """Angle of the rotation between two quaternions, sign-invariant (``q`` and ``-q`` agree).
 
-    ``4 atan2(min(|p - q|, |p + q|), max(...))`` of the normalised inputs: accurate near 0 and pi,
+    ``2 atan2(|p - q| |p + q|, ||p + q|^2 - |p - q|^2| / 2)`` of the normalised inputs (the chords'
+    product is ``2 sin``, their squares' difference ``4 cos`` of half the angle): accurate near 0 and pi,
     where ``2 acos(|<q1, q2>|)`` loses half its digits and has an infinite gradient. The gradient
     is finite everywhere (0 at distance 0, the kink of the distance).
 
