@@ -120,7 +120,7 @@ def test_degenerate_input_gives_nan_never_a_plausible_rotation():
     assert torch.allclose(R, torch.eye(3, dtype=torch.float64))
 
 
-# --- found by an audit of the functions against the contract (session 18) ---
+# --- found by an audit of the functions against the contract ---
 
 def test_rot9d_of_rank_0_or_1_is_nan_not_a_plausible_rotation():
     # every rotation that keeps a rank-1 matrix's one direction is as near: none is the answer
