@@ -27,7 +27,7 @@ from typing import Callable, Dict, List, NamedTuple, Tuple
 
 import numpy
 
-from ._backends import ARRAY_FUNCTIONS, FLOAT_FUNCTIONS, _float_sign
+from ._backends import ARRAY_FUNCTIONS, FLOAT_FUNCTIONS
 
 _CACHE: Dict[Tuple, "Generated"] = {}
 
@@ -104,10 +104,6 @@ class Node:
     def __ror__(self, o): return self._new("or", o, self)
 
 
-_FLOAT_OPS = {"sqrt": math.sqrt, "sin": math.sin, "cos": math.cos, "atan2": math.atan2, "fmod": math.fmod,
-              "abs": abs, "sign": _float_sign, "where": lambda c, a, b: a if c else b}
-
-
 class _Trace:
     """The namespace of :mod:`torchquat._backends` for tracing."""
 
@@ -116,7 +112,7 @@ class _Trace:
     @staticmethod
     def _apply(op, *args):
         node = next((a for a in args if isinstance(a, Node)), None)
-        return _FLOAT_OPS[op](*args) if node is None else node._new(op, *args)  # (constants fold)
+        return FLOAT_FUNCTIONS[op](*args) if node is None else node._new(op, *args)  # (constants fold)
 
     def sqrt(self, x): return self._apply("sqrt", x)
     def sin(self, x): return self._apply("sin", x)
