@@ -109,7 +109,7 @@ def _kernels(formula, out_shape, row_dims: int, static) -> Tuple[Callable, Calla
 
 
 def _compiled_gradients(vjp, grad, inputs):
-    return vjp(*inputs, grad)
+    return [g if x.requires_grad else None for g, x in zip(vjp(*inputs, grad), inputs)]
 
 
 def run(formula, inputs: Sequence[Tensor], out_shape: Tuple[int, ...], row_dims: int = 1, **static) -> Tensor:

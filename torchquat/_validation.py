@@ -90,7 +90,8 @@ def prepare_pair(fn: str, names: Sequence[str], a, b, trailing_a: Tuple[int, ...
     b, dtype_b = prepare(b, fn, names[1], trailing_b)
     if a.is_cpu != b.is_cpu:  # (is_cpu: 0.05 us, where .device costs 0.2; GPU against GPU: PyTorch's error)
         raise RuntimeError(f"{fn}: expected {names[0]} and {names[1]} on one device, got {a.device} and {b.device}")
-    if a.shape[: a.dim() - len(trailing_a)] != b.shape[: b.dim() - len(trailing_b)]:  # (equal: nothing to check)
+    if (a.shape != b.shape or trailing_a != trailing_b) and \
+            a.shape[: a.dim() - len(trailing_a)] != b.shape[: b.dim() - len(trailing_b)]:  # (equal: nothing to check)
         check_broadcast(fn, names, (a, b), (len(trailing_a), len(trailing_b)))
     a, b = common_dtype(a, b)
     # mixed dtypes return the promoted one whatever the order (float32 with float64: float64)
