@@ -69,7 +69,7 @@ class Gradient(torch.autograd.Function):
 
 
 def _row_gradients(tape, grad: Tensor, inputs):
-    code, parameters, values, saved, widths = tape
+    code, parameters, values, saved = tape
     grad = grad.tolist()  # (a float, or nested lists of one output row)
     if type(grad) is float:
         grad = [grad]
@@ -82,7 +82,8 @@ def _row_gradients(tape, grad: Tensor, inputs):
     if not math.isfinite(sum(flat)):  # (an overflowing sum only falls back)
         return None
     flat, grads, start = numpy.array(flat, dtype=_NUMPY_DTYPES[inputs[0].dtype]), [], 0
-    for width, x in zip(widths, inputs):
+    for x in inputs:  # (each one row: its numel values)
+        width = x.numel()
         grads.append(torch.from_numpy(flat[start:start + width].reshape(tuple(x.shape))) if x.requires_grad else None)
         start += width
     return grads
@@ -114,20 +115,19 @@ def _column_gradients(tape, grad: Tensor, inputs):
 
 def one_row(formula, inputs: Sequence[Tensor], out_shape, row_dims: int, static, fallback) -> Optional[Tensor]:
     """The formula on one row of Python floats, or ``None`` where that path does not apply."""
-    values, widths, grad, dims = [], [], False, row_dims
+    values, grad, dims = [], False, row_dims
     for x in inputs:
         if type(x) not in _PLAIN or not x.is_cpu:
             return None
         shape = x.shape
-        width = shape[-1] if row_dims == 1 else 9
-        if x.numel() != width or not has_storage(x):
+        if x.numel() != (shape[-1] if row_dims == 1 else 9) or not has_storage(x):
             return None
-        widths.append(width)
         grad = grad or x.requires_grad
-        row = x.tolist()  # (a nested list: unwrapping its leading 1s costs less than a reshape)
-        for _ in range(len(shape) - row_dims):
-            row = row[0]
-        dims = max(dims, len(shape))
+        row = x.tolist()
+        if len(shape) > row_dims:  # (leading 1s: unwrapping the nested list costs less than a reshape)
+            dims = max(dims, len(shape))
+            for _ in range(len(shape) - row_dims):
+                row = row[0]
         if row_dims == 1:
             values += row
         else:
@@ -149,7 +149,7 @@ def one_row(formula, inputs: Sequence[Tensor], out_shape, row_dims: int, static,
     # builds and shapes a small array faster than torch.tensor (each entry rounded once).
     result = numpy.array(out, dtype=numpy_dtype).reshape((1,) * (dims - row_dims) + out_shape)
     if keep:
-        return Gradient.apply(result, _row_gradients, (code, parameters, values, saved, widths), fallback, *inputs)
+        return Gradient.apply(result, _row_gradients, (code, parameters, values, saved), fallback, *inputs)
     return torch.from_numpy(result)
 
 
