@@ -96,6 +96,25 @@ def test_second_derivatives_of_one_rotation_are_autograds_of_the_eager_formula(n
     assert torch.autograd.gradgradcheck(fn, row)
 
 
+@pytest.mark.parametrize("shapes", [((1,), (1,)), ((1, 1), (1,)), ((), (1, 1, 1))], ids=str)
+@pytest.mark.parametrize("name", ["quat_to_matrix", "matrix_to_quat", "quat_geodesic_distance",
+                                  "matrix_geodesic_distance", "quat_rotate"])
+def test_one_row_with_leading_ones_has_the_tensor_formulas_shape_values_and_gradients(name, shapes):
+    # one row given as (1, 4), (1, 1, 4), ... and broadcast against a plain row
+    fn, generic, _ = ALL[name]
+    inputs = tuple(x[2].reshape(lead + x.shape[1:]) for x, lead in zip(generic(), shapes))
+    leaves = tuple(x.clone().requires_grad_() for x in inputs)
+    out = fn(*leaves)
+    weights = torch.linspace(0.5, 1.5, out.numel(), dtype=out.dtype).view(out.shape)
+    grads = torch.autograd.grad(out, leaves, weights)
+    reference_out, vjp = torch.func.vjp(fn, *inputs)  # (wrapped tensors: the tensor formula)
+    assert out.shape == reference_out.shape and out.dtype == reference_out.dtype
+    assert torch.allclose(out, reference_out, atol=1e-12, rtol=0)
+    for g, r, x in zip(grads, vjp(weights), inputs):
+        assert g.shape == x.shape
+        assert torch.allclose(g, r, atol=1e-9, rtol=1e-9), name
+
+
 @pytest.mark.parametrize("rows", [1, 5, 3000], ids=["one row", "batch", "large batch"])
 @pytest.mark.parametrize("name", sorted(ALL))
 def test_the_generated_reverse_mode_equals_autograd_of_the_tensor_formula(name, rows):
