@@ -145,6 +145,15 @@ def test_multiply_rotate_and_distance_match_scipy():
     assert (tq.matrix_geodesic_distance(tq.quat_to_matrix(p), tq.quat_to_matrix(q)) - ref).abs().max() <= TOL
 
 
+def test_quat_distance_of_scaled_float32_inputs_is_the_distance_of_their_rotations():
+    # no input is normalised: the documented domain is |q1|^2 |q2|^2 a normal float32
+    p, q = singular_and_uniform(), uniform(len(singular_and_uniform()), seed=7)
+    ref = torch.as_tensor((sp(p).inv() * sp(q)).magnitude())
+    for a, b in ((1e-9, 1e-9), (1e9, 1e9), (1e-18, 1.0), (1e18, 1.0), (1e-9, 1e9), (3.0, 0.25)):
+        d = tq.quat_geodesic_distance((p * a).float(), (q * b).float())
+        assert (d.double() - ref).abs().max() <= 1e-5, (a, b)
+
+
 def test_distance_at_singular_points_matches_scipy():
     q = singular_and_uniform()
     ident = tq.quat_identity(len(q), dtype=torch.float64)

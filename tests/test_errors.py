@@ -110,6 +110,12 @@ def test_degenerate_input_gives_nan_never_a_plausible_rotation():
     for fn in (tq.quat_to_matrix, tq.quat_normalize, tq.quat_inverse, tq.quat_to_axis_angle,
                lambda q: tq.quat_to_euler(q, "ZYX"), lambda q: tq.quat_rotate(q, torch.ones(3))):
         assert fn(zero).isnan().all()
+    q = torch.tensor([0.5, -0.5, 0.5, 0.5])
+    for rows in (1, 3, 5000):  # (one row on floats, batches on NumPy columns, selections on bits)
+        zeros, units = zero.expand(rows, 4), q.expand(rows, 4)
+        assert tq.quat_geodesic_distance(zeros, units).isnan().all()
+        assert tq.quat_geodesic_distance(units, zeros).isnan().all()
+    assert torch.func.vmap(tq.quat_geodesic_distance)(zero[None], q[None]).isnan().all()  # (the tensor formula)
     collinear = torch.tensor([1.0, 2.0, 3.0, 2.0, 4.0, 6.0])
     assert tq.rot6d_to_matrix(collinear).isnan().all()
     assert tq.rot6d_to_matrix(torch.tensor([1.0, 2.0, 3.0, 0.0, 0.0, 0.0])).isnan().all()

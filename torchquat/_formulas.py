@@ -171,22 +171,18 @@ def rot6d_to_matrix(m, a0, a1, a2, b0, b1, b2, noise: float):
 
 
 def quat_distance(m, pw, px, py, pz, qw, qx, qy, qz):
-    """The angle between the rotations of the normalised inputs, from the chords
-    ``minus = |p - q|^2 = 2 - 2c`` and ``plus = |p + q|^2 = 2 + 2c`` (``c = <p, q>``): with the
-    half angle ``phi`` between the lines of ``p`` and ``q``, ``minus * plus = 4 sin^2 phi`` and
-    ``|plus - minus| = 4 |cos phi|``, so the angle ``2 phi`` is
-    ``2 atan2(sqrt(minus * plus), |plus - minus| / 2)``: each factor accurate at 0 and pi (no
-    ``acos``, no ``1 - c^2``), sign-invariant without choosing a chord; equal inputs give an exact
-    0 and a zero (finite) gradient; the zero quaternion gives NaN."""
-    ip = 1.0 / m.sqrt(pw * pw + px * px + py * py + pz * pz)
-    iq = 1.0 / m.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-    pw, px, py, pz = pw * ip, px * ip, py * ip, pz * ip
-    qw, qx, qy, qz = qw * iq, qx * iq, qy * iq, qz * iq
-    dw, dx, dy, dz = pw - qw, px - qx, py - qy, pz - qz
-    sw, sx, sy, sz = pw + qw, px + qx, py + qy, pz + qz
-    minus = dw * dw + dx * dx + dy * dy + dz * dz
-    plus = sw * sw + sx * sx + sy * sy + sz * sz
-    return (2.0 * m.atan2(safe_sqrt(m, minus * plus), m.abs(plus - minus) * 0.5),)
+    """The angle between the rotations of ``p`` and ``q``: twice the angle between the lines of
+    ``p`` and ``q`` in 4D, ``2 atan2(|p ^ q|, |<p, q>|)``, where ``|p ^ q|^2`` sums the squares
+    of the six ``p_i q_j - p_j q_i`` (Lagrange: ``|p|^2 |q|^2 = <p, q>^2 + |p ^ q|^2``). Both
+    arguments scale alike, so neither input is normalised; each is accurate in absolute terms at
+    0 and pi (no ``acos``, no ``1 - c^2``) and sign-invariant; equal or opposite inputs give an
+    exact 0 and a zero (finite) gradient; a zero quaternion gives NaN."""
+    dot = pw * qw + px * qx + py * qy + pz * qz
+    wx, wy, wz = pw * qx - px * qw, pw * qy - py * qw, pw * qz - pz * qw
+    yz, zx, xy = py * qz - pz * qy, pz * qx - px * qz, px * qy - py * qx
+    wedge = wx * wx + wy * wy + wz * wz + yz * yz + zx * zx + xy * xy
+    undefined = m.where(wedge + dot * dot > 0.0, 0.0, math.nan)  # (a zero input; +0.0 leaves no -0.0)
+    return (2.0 * m.atan2(safe_sqrt(m, wedge), m.abs(dot)) + undefined,)
 
 
 def matrix_distance(m, a00, a01, a02, a10, a11, a12, a20, a21, a22, b00, b01, b02, b10, b11, b12, b20, b21, b22):

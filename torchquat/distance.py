@@ -12,14 +12,16 @@ __all__ = ["quat_geodesic_distance", "matrix_geodesic_distance"]
 def quat_geodesic_distance(q1: Tensor, q2: Tensor) -> Tensor:
     """Angle of the rotation between two quaternions, sign-invariant (``q`` and ``-q`` agree).
 
-    ``2 atan2(|p - q| |p + q|, ||p + q|^2 - |p - q|^2| / 2)`` of the normalised inputs (the chords'
-    product is ``2 sin``, their squares' difference ``4 cos`` of half the angle): accurate near 0 and pi,
-    where ``2 acos(|<q1, q2>|)`` loses half its digits and has an infinite gradient. The gradient
-    is finite everywhere (0 at distance 0, the kink of the distance).
+    ``2 atan2(|q1 ^ q2|, |<q1, q2>|)``: twice the angle between the lines of ``q1`` and ``q2`` in
+    4D, with ``|q1 ^ q2|`` the norm of the six ``a_i b_j - a_j b_i``. Accurate near 0 and pi, where
+    ``2 acos(|<q1, q2>|)`` loses half its digits and has an infinite gradient; both arguments scale
+    alike, so the inputs need no normalising. The gradient is finite everywhere (0 at distance 0,
+    the kink of the distance). A zero quaternion gives NaN.
 
     Args:
-        q1: quaternions ``(w, x, y, z)``, any non-zero norm whose square is a normal number.
-        q2: quaternions; batch dims broadcast with ``q1``'s.
+        q1: quaternions ``(w, x, y, z)``, any non-zero norm.
+        q2: quaternions; batch dims broadcast with ``q1``'s. ``|q1|^2 |q2|^2`` must be a normal
+            number of the dtype (float32: ``|q1| |q2|`` between about 1e-19 and 1e19).
 
     Returns:
         Angles in ``[0, pi]``.
