@@ -127,7 +127,10 @@ def axis_angle_to_quat(m, a, b, c):
     half = 0.5 * m.sqrt(m.where(small, 1.0, s))
     w = m.where(small, 1.0 - s * (1.0 / 8.0 - s * (1.0 / 384.0)), m.cos(half))
     k = m.where(small, 0.5 - s * (1.0 / 48.0 - s * (1.0 / 3840.0)), m.sin(half) / m.where(small, 1.0, half + half))
-    return standardize(m, w, a * k, b * k, c * k)
+    # standardised: w = cos(theta / 2) is never exactly 0 (no float is an odd multiple of pi / 2, and
+    # the series is near 1), so the sign to take is w's own and standardize's tie-break cannot arise
+    k = k * m.sign(w)
+    return m.abs(w), a * k, b * k, c * k
 
 
 def quat_to_axis_angle(m, w, x, y, z):
