@@ -58,14 +58,6 @@ def restore(y: Tensor, dtype: torch.dtype) -> Tensor:
     return y if y.dtype == dtype else y.to(dtype)
 
 
-def common_dtype(a: Tensor, b: Tensor) -> Tuple[Tensor, Tensor]:
-    """Promote two prepared tensors to one dtype (float32 with float64 gives float64)."""
-    if a.dtype == b.dtype:
-        return a, b
-    dtype = torch.promote_types(a.dtype, b.dtype)
-    return a.to(dtype), b.to(dtype)
-
-
 def check_broadcast(fn: str, names: Sequence[str], tensors: Sequence[Tensor],
                     trailing: Sequence[int]) -> None:
     """Raise ``ShapeError`` unless the batch shapes (all but the trailing dims) broadcast."""
@@ -93,6 +85,9 @@ def prepare_pair(fn: str, names: Sequence[str], a, b, trailing_a: Tuple[int, ...
     if (a.shape != b.shape or trailing_a != trailing_b) and \
             a.shape[: a.dim() - len(trailing_a)] != b.shape[: b.dim() - len(trailing_b)]:  # (equal: nothing to check)
         check_broadcast(fn, names, (a, b), (len(trailing_a), len(trailing_b)))
-    a, b = common_dtype(a, b)
-    # mixed dtypes return the promoted one whatever the order (float32 with float64: float64)
-    return a, b, dtype if dtype == dtype_b else torch.promote_types(dtype, dtype_b)
+    if dtype == dtype_b:
+        return a, b, dtype
+    # mixed dtypes compute in and return the promoted one whatever the order (float32 with float64:
+    # float64; a half-precision one with float32: float32)
+    computed = torch.promote_types(a.dtype, b.dtype)
+    return a.to(computed), b.to(computed), torch.promote_types(dtype, dtype_b)
