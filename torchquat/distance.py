@@ -13,10 +13,10 @@ def quat_geodesic_distance(q1: Tensor, q2: Tensor) -> Tensor:
     """Angle of the rotation between two quaternions, sign-invariant (``q`` and ``-q`` agree).
 
     ``2 atan2(|q1 ^ q2|, |<q1, q2>|)``: twice the angle between the lines of ``q1`` and ``q2`` in
-    4D, with ``|q1 ^ q2|`` the norm of the six ``a_i b_j - a_j b_i``. Accurate near 0 and pi, where
-    ``2 acos(|<q1, q2>|)`` loses half its digits and has an infinite gradient; both arguments scale
-    alike, so the inputs need no normalising. The gradient is finite everywhere (0 at distance 0,
-    the kink of the distance). A zero quaternion gives NaN.
+    4D, with ``|q1 ^ q2|`` the norm of the six ``q1_i q2_j - q1_j q2_i``. Accurate near 0 and pi,
+    where ``2 acos(|<q1, q2>|)`` loses half its digits and has an infinite gradient; both arguments
+    scale alike, so the inputs need no normalising. The gradient is finite everywhere (0 at
+    distance 0, the kink of the distance). A zero quaternion gives NaN.
 
     Args:
         q1: quaternions ``(w, x, y, z)``, any non-zero norm.
