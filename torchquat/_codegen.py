@@ -136,14 +136,18 @@ _FORWARD = {
 _BACKWARD = {
     "add": ((1, "{a}"), (1, "{a}")), "sub": ((1, "{a}"), (-1, "{a}")), "neg": ((-1, "{a}"),),
     "mul": ((1, "{a} * {1}"), (1, "{a} * {0}")), "div": ((1, "{a} / {1}"), (-1, "{a} * {v} / {1}")),
-    "sqrt": ((1, "{a} * {half} / {v}"),), "sin": ((1, "{a} * cos({0})"),), "cos": ((-1, "{a} * sin({0})"),),
+    "sqrt": ((1, "{a} * {half} / {v}"),), "sin": ((1, "{a} * {cos}"),), "cos": ((-1, "{a} * {sin}"),),
     "atan2": ((1, "{r} * {1}"), (-1, "{r} * {0}")),
-    "fmod": ((1, "{a}"), None), "abs": ((1, "{a} * sign({0})"),),
+    "fmod": ((1, "{a}"), None), "abs": ((1, "{a} * {sign}"),),
     "where": (None, (1, "where({0}, {a}, {zero})"), (1, "where({0}, {zero}, {a})")),
 }
 _ONCE = {"atan2": "{a} / ({0} * {0} + {1} * {1})"}
 # NumPy's where costs about four products: a product with the (boolean) condition selects instead
-_ARRAY_WHERE = (None, (1, "{a} * {0}"), (1, "{a} * ~{0}"))
+# ({n}: the condition's negation, computed once)
+_ARRAY_WHERE = (None, (1, "{a} * {0}"), (1, "{a} * {n}"))
+# the functions of an argument that derivatives read ({cos}, {sin}, {sign}): the forward's value
+# where the formula computed it too, so that the backward does not compute it again
+_DERIVATIVE_FACTORS = ("cos", "sin", "sign")
 
 
 class Generated(NamedTuple):
@@ -175,8 +179,10 @@ class _Names:
         return name
 
 
-def _backward_lines(nodes: List[Node], outputs, n_inputs: int, name: _Names) -> List[str]:
+def _backward_lines(nodes: List[Node], outputs, n_inputs: int, name: _Names, computed: List[bool]) -> List[str]:
+    """The backward's lines; ``computed`` marks the steps the forward takes (their values can be saved)."""
     arrays = name.dtype is not None
+    memo = nodes[0].graph.memo if nodes else {}
     varies = [False] * len(nodes)  # depends on an input
     for node in nodes:
         varies[node.index] = node.op == "input" or any(isinstance(a, Node) and varies[a.index] for a in node.args)
@@ -214,7 +220,7 @@ def _backward_lines(nodes: List[Node], outputs, n_inputs: int, name: _Names) -> 
             sign = 1
         adjoint[index] = (f"a{index}", sign)
 
-    doubled = set()
+    doubled, negated = set(), set()
     for k, o in enumerate(outputs):
         if isinstance(o, Node) and needed[o.index]:
             contribute(o.index, 1, f"g{k}")
@@ -227,6 +233,16 @@ def _backward_lines(nodes: List[Node], outputs, n_inputs: int, name: _Names) -> 
         args = list(map(name, node.args))
         fields = dict(a=adjoint_name, v=f"v{node.index}", r=f"r{node.index}",
                       half=name(0.5), two=name(2.0), zero=name(0.0))
+        if node.op in ("sin", "cos", "abs"):
+            for function in _DERIVATIVE_FACTORS:
+                same = memo.get((function, ("v", node.args[0].index)))
+                fields[function] = f"v{same.index}" if same is not None and computed[same.index] \
+                    else f"{function}({args[0]})"
+        if rules is _ARRAY_WHERE:
+            fields["n"] = f"n{condition.index}"
+            if condition.index not in negated:
+                negated.add(condition.index)
+                lines.append(f"    n{condition.index} = ~{args[0]}")
         if node.op == "mul" and node.args[0] is node.args[1]:  # (x * x: one term, twice)
             # (the squares of a sum of squares share one adjoint: it is doubled once for all of them)
             fields["a"] = f"d{adjoint_name}"
@@ -256,7 +272,6 @@ def _generate(formula, n_inputs: int, static: dict, dtype) -> Generated:
     outputs = formula(_Trace(), *inputs, **options)
     nodes = graph.nodes
     arguments = [f"v{i}" for i in range(n_inputs + len(parameters))]
-    backward = _backward_lines(nodes, outputs, n_inputs, name)
     # the steps the outputs need (all that the backward reads are among them)
     used = [False] * len(nodes)
     for o in outputs:
@@ -267,6 +282,7 @@ def _generate(formula, n_inputs: int, static: dict, dtype) -> Generated:
             for arg in node.args:
                 if isinstance(arg, Node):
                     used[arg.index] = True
+    backward = _backward_lines(nodes, outputs, n_inputs, name, used)
     steps = [node for node in nodes[len(arguments):] if used[node.index]]
     read = set(map(int, re.findall(r"\bv(\d+)\b", "\n".join(backward))))
     saved = [f"v{node.index}" for node in steps if node.index in read]
@@ -284,7 +300,7 @@ def _generate(formula, n_inputs: int, static: dict, dtype) -> Generated:
     return Generated(scope["forward"], scope["evaluate"], scope["backward"], parameters)
 
 
-_VALUE = re.compile(r"\b(?:[var]|d[ag])\d+\b")
+_VALUE = re.compile(r"\b(?:[varn]|d[ag])\d+\b")
 
 
 def _free_after_last_use(lines: List[str]) -> List[str]:
