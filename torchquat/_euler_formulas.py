@@ -117,7 +117,10 @@ def angles(m, f, name: str, lock_sine: float, degrees: bool):
     # the double angle of the larger pair (its norm is |ab|^2 or |cd|^2, the larger: never 0 / 0)
     double = m.atan2(m.where(near0, f["day"], f["dcy"]), m.where(near0, f["dax"], f["dcx"]))
     t3 = double + m.where(near0, -t1, t1)
-    t3 = m.where(t3 > math.pi, t3 - 2.0 * math.pi, m.where(t3 < -math.pi, t3 + 2.0 * math.pi, t3))
+    # into [-pi, pi] by 2 pi sign(t3) where |t3| > pi: products, not selections, whose adjoint would
+    # pass through both sides (the sign keeps t3's dtype, where a comparison times a Python float
+    # takes torch's default one; -0.0 becomes +0.0, as with every output below)
+    t3 = t3 - (m.sign(t3) * (m.abs(t3) > math.pi)) * (2.0 * math.pi)
     at_lock = double if conv.intrinsic else m.where(near0, double, -double)
     if conv.intrinsic:  # (computed as the reversed extrinsic sequence: its first angle is the last)
         out = (m.where(lock, at_lock, t3) * float(sign), middle, m.where(lock, 0.0, t1))
