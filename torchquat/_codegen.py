@@ -238,8 +238,6 @@ def _backward_lines(nodes: List[Node], outputs, n_inputs: int, name: _Names, com
                 same = memo.get((function, ("v", node.args[0].index)))
                 fields[function] = f"v{same.index}" if same is not None and computed[same.index] \
                     else f"{function}({args[0]})"
-        if rules is _ARRAY_WHERE:
-            fields["n"] = f"n{condition.index}"
         if node.op == "mul" and node.args[0] is node.args[1]:  # (x * x: one term, twice)
             # (the squares of a sum of squares share one adjoint: it is doubled once for all of them)
             fields["a"] = f"d{adjoint_name}"
@@ -251,9 +249,11 @@ def _backward_lines(nodes: List[Node], outputs, n_inputs: int, name: _Names, com
             lines.append(f"    r{node.index} = " + _ONCE[node.op].format(*args, **fields))
         for arg, rule in zip(node.args, rules):
             if rule is not None and isinstance(arg, Node) and needed[arg.index]:
-                if "{n}" in rule[1] and condition.index not in negated:
-                    negated.add(condition.index)
-                    lines.append(f"    n{condition.index} = ~{args[0]}")
+                if "{n}" in rule[1]:  # (the negated condition: once, where a side reads it)
+                    fields["n"] = f"n{condition.index}"
+                    if condition.index not in negated:
+                        negated.add(condition.index)
+                        lines.append(f"    n{condition.index} = ~{args[0]}")
                 contribute(arg.index, sign * rule[0], rule[1].format(*args, **fields))
     results = []
     for i in range(n_inputs):
