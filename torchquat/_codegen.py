@@ -145,9 +145,9 @@ _ONCE = {"atan2": "{a} / ({0} * {0} + {1} * {1})"}
 # NumPy's where costs about four products: a product with the (boolean) condition selects instead
 # ({n}: the condition's negation, computed once)
 _ARRAY_WHERE = (None, (1, "{a} * {0}"), (1, "{a} * {n}"))
-# the functions of an argument that derivatives read ({cos}, {sin}, {sign}): the forward's value
+# the function of its argument that a derivative reads ({cos}, {sin}, {sign}): the forward's value
 # where the formula computed it too, so that the backward does not compute it again
-_DERIVATIVE_FACTORS = ("cos", "sin", "sign")
+_DERIVATIVE_FACTOR = {"sin": "cos", "cos": "sin", "abs": "sign"}
 
 
 class Generated(NamedTuple):
@@ -233,11 +233,10 @@ def _backward_lines(nodes: List[Node], outputs, n_inputs: int, name: _Names, com
         args = list(map(name, node.args))
         fields = dict(a=adjoint_name, v=f"v{node.index}", r=f"r{node.index}",
                       half=name(0.5), two=name(2.0), zero=name(0.0))
-        if node.op in ("sin", "cos", "abs"):
-            for function in _DERIVATIVE_FACTORS:
-                same = memo.get((function, ("v", node.args[0].index)))
-                fields[function] = f"v{same.index}" if same is not None and computed[same.index] \
-                    else f"{function}({args[0]})"
+        function = _DERIVATIVE_FACTOR.get(node.op)
+        if function is not None:
+            same = memo.get((function, ("v", node.args[0].index)))
+            fields[function] = f"v{same.index}" if same is not None and computed[same.index] else f"{function}({args[0]})"
         if node.op == "mul" and node.args[0] is node.args[1]:  # (x * x: one term, twice)
             # (the squares of a sum of squares share one adjoint: it is doubled once for all of them)
             fields["a"] = f"d{adjoint_name}"
